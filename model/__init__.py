@@ -1,0 +1,1 @@
+"""Adaptive O-CNN: the patch-guided adaptive octree, its networks, data and training."""

@@ -1,0 +1,10 @@
+"""The patch-guided adaptive octree (paper section 3): NumPy/SciPy only, shared by training and serving."""
+
+from .build import DEFAULT_THRESHOLD, build_octree
+from .errors import OctreeInputError
+from .octree import EMPTY, LEAF, SPLIT, Normalization, Octree, OctreeLevel
+from .pointcloud import PointCloud, estimate_normals, validate
+
+__all__ = ["DEFAULT_THRESHOLD", "EMPTY", "LEAF", "SPLIT", "Normalization", "Octree",
+           "OctreeInputError", "OctreeLevel", "PointCloud", "build_octree", "estimate_normals",
+           "validate"]

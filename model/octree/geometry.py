@@ -1,0 +1,217 @@
+"""Vectorised geometry of octant patches: plane fits, plane-cube polygons and distances.
+
+Every function works on M octants at once (arrays with a leading M axis) so that a whole depth
+of the octree is processed without a Python loop.  Coordinates are local to each octant: the
+octant's cube is ``[-h/2, h/2]^3`` around its centre and a plane is ``n . y + d = 0``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+MAX_POLYGON = 6
+"""A plane cuts a cube in a convex polygon of at most 6 vertices."""
+
+_CORNERS = np.array(
+    [[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)]
+)
+_EDGES = np.array(
+    [(a, b) for a in range(8) for b in range(a + 1, 8)
+     if np.abs(_CORNERS[a] - _CORNERS[b]).sum() == 1.0]
+)
+
+
+def symmetric_eigen(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (3, M) in descending order of symmetric 3x3 matrices given by components.
+
+    ``c`` is (6, M): xx, xy, xz, yy, yz, zz.  Closed form (trigonometric method) on contiguous
+    rows, several times faster than ``np.linalg.eigh`` on many small matrices.
+    """
+    xx, xy, xz, yy, yz, zz = c
+    q = (xx + yy + zz) / 3.0
+    p1 = xy * xy + xz * xz + yz * yz
+    dx, dy, dz = xx - q, yy - q, zz - q
+    p = np.sqrt((dx * dx + dy * dy + dz * dz + 2.0 * p1) / 6.0)
+    inv = 1.0 / np.where(p > 0, p, 1.0)
+    dx, dy, dz = dx * inv, dy * inv, dz * inv
+    bxy, bxz, byz = xy * inv, xz * inv, yz * inv
+    det = dx * (dy * dz - byz * byz) - bxy * (bxy * dz - byz * bxz) + bxz * (bxy * byz - dy * bxz)
+    phi = np.arccos(np.clip(det * 0.5, -1.0, 1.0)) / 3.0
+    e1 = q + 2.0 * p * np.cos(phi)
+    e3 = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    return np.stack([e1, 3.0 * q - e1 - e3, e3])
+
+
+def eigenvector(c: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """Unit vectors (M, 3) spanning the null space of ``C - lam I`` (best of three row crosses).
+
+    Where the null space is more than one-dimensional the result is arbitrary but unit length.
+    """
+    xx, xy, xz, yy, yz, zz = c
+    ax, by, cz = xx - lam, yy - lam, zz - lam
+    # rows r0 = (ax, xy, xz), r1 = (xy, by, yz), r2 = (xz, yz, cz)
+    c01 = np.stack([xy * yz - xz * by, xz * xy - ax * yz, ax * by - xy * xy])
+    c02 = np.stack([xy * cz - xz * yz, xz * xz - ax * cz, ax * yz - xy * xz])
+    c12 = np.stack([by * cz - yz * yz, yz * xz - xy * cz, xy * yz - by * xz])
+    n01, n02, n12 = (c01 * c01).sum(0), (c02 * c02).sum(0), (c12 * c12).sum(0)
+    best = np.where(n01 >= n02, np.where(n01 >= n12, 0, 2), np.where(n02 >= n12, 1, 2))
+    v = np.where(best == 0, c01, np.where(best == 1, c02, c12))
+    n = np.sqrt(np.maximum(np.maximum(n01, n02), n12))
+    ok = n > 0
+    v = v / np.where(ok, n, 1.0)
+    v[0, ~ok] = 1.0
+    return np.ascontiguousarray(v.T)
+
+
+def fit_planes(count: np.ndarray, s1: np.ndarray, s2: np.ndarray, nsum: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares planes (paper eq. 1) from point moments; normals oriented by ``nsum``.
+
+    ``count`` (M,), ``s1`` (3, M) sums of points, ``s2`` (6, M) sums of products xx, xy, xz,
+    yy, yz, zz, ``nsum`` (3, M) sums of input normals.  Returns unit normals (M, 3), centroids
+    (M, 3) and a mask of degenerate fits (a single point or collinear points), whose normal is
+    the average input normal made orthogonal to the points' line.
+    """
+    m = s1 / count
+    cov = s2 / count - m[[0, 0, 0, 1, 1, 2]] * m[[0, 1, 2, 1, 2, 2]]
+    vals = symmetric_eigen(cov)
+    normal = eigenvector(cov, vals[2])
+    # The closed-form eigenvalues carry sqrt(eps) relative error near a double root; one
+    # Rayleigh-quotient step makes the smallest one accurate before taking its vector again.
+    normal = eigenvector(cov, _rayleigh(cov, normal))
+    # Spread along the second axis below ~0.03% of the first: a line (or a point), no plane.
+    degenerate = (vals[1] <= 1e-7 * vals[0]) | (vals[0] <= 0)
+    nsum = np.ascontiguousarray(nsum.T)
+    if degenerate.any():
+        # A line (or a single point) does not define a plane: take the average input normal,
+        # minus its component along the line (coordinates are in the unit cube, so 1e-20 is
+        # far below any octant's size squared).
+        d = eigenvector(cov[:, degenerate], vals[0, degenerate])
+        a = nsum[degenerate]
+        a = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-300)
+        line = vals[0, degenerate] > 1e-20
+        a = np.where(line[:, None], a - (a * d).sum(1, keepdims=True) * d, a)
+        an = np.linalg.norm(a, axis=1, keepdims=True)
+        helper = np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+        perp = np.cross(d, helper)
+        perp /= np.linalg.norm(perp, axis=1, keepdims=True)
+        normal[degenerate] = np.where(an > 1e-12, a / np.maximum(an, 1e-300), perp)
+    flip = (normal * nsum).sum(1) < 0
+    normal[flip] *= -1.0
+    return normal, np.ascontiguousarray(m.T), degenerate
+
+
+def _rayleigh(c: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """v^T C v for unit vectors v (M, 3) and matrices given by components (6, M)."""
+    x, y, z = v.T
+    xx, xy, xz, yy, yz, zz = c
+    return xx * x * x + yy * y * y + zz * z * z + 2.0 * (xy * x * y + xz * x * z + yz * y * z)
+
+
+def plane_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (u, v) with ``u x v = n`` spanning each plane."""
+    axis = np.zeros_like(normal)
+    axis[np.arange(len(normal)), np.argmin(np.abs(normal), axis=1)] = 1.0
+    u = np.cross(normal, axis)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    return u, np.cross(normal, u)
+
+
+def cube_polygons(normal: np.ndarray, offset: np.ndarray, size: np.ndarray | float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Polygons where planes ``n . y + offset = 0`` cut the cubes ``[-size/2, size/2]^3``.
+
+    Returns vertices (M, 6, 3) ordered counter-clockwise about ``n`` (padded by repeating the
+    last vertex) and the vertex counts (M,); a count of 0 means the plane misses the cube.
+    """
+    size = np.broadcast_to(np.asarray(size, dtype=np.float64), offset.shape)
+    corners = _CORNERS[None] * size[:, None, None]                     # (M, 8, 3)
+    f = np.einsum("mkj,mj->mk", corners, normal) + offset[:, None]     # (M, 8)
+    tol = 1e-12 * size[:, None]
+    on = np.abs(f) <= tol
+    fa, fb = f[:, _EDGES[:, 0]], f[:, _EDGES[:, 1]]
+    cross = ((fa > tol) & (fb < -tol)) | ((fa < -tol) & (fb > tol))
+    t = fa / np.where(cross, fa - fb, 1.0)
+    pa, pb = corners[:, _EDGES[:, 0]], corners[:, _EDGES[:, 1]]
+    cand = np.concatenate([corners, pa + t[..., None] * (pb - pa)], axis=1)  # (M, 20, 3)
+    valid = np.concatenate([on, cross], axis=1)
+    count = valid.sum(1)
+    u, v = plane_basis(normal)
+    w = np.where(valid[..., None], cand, 0.0)
+    centre = w.sum(1) / np.maximum(count, 1)[:, None]
+    rel = cand - centre[:, None]
+    ang = np.arctan2(np.einsum("mkj,mj->mk", rel, v), np.einsum("mkj,mj->mk", rel, u))
+    order = np.argsort(np.where(valid, ang, np.inf), axis=1)[:, :MAX_POLYGON]
+    verts = np.take_along_axis(cand, order[..., None], axis=1)
+    count = np.minimum(count, MAX_POLYGON)
+    last = np.take_along_axis(verts, np.maximum(count - 1, 0)[:, None, None].repeat(3, 2), axis=1)
+    pad = np.arange(MAX_POLYGON)[None] >= count[:, None]
+    verts = np.where(pad[..., None], last, verts)
+    return verts, count
+
+
+def polygon_distance(points: np.ndarray, normal: np.ndarray, offset: np.ndarray,
+                     verts: np.ndarray) -> np.ndarray:
+    """Euclidean distance from each point to its own planar convex polygon.
+
+    ``points`` (K, 3), and per point its polygon's plane (normal, offset) and vertices (K, 6, 3)
+    as returned by :func:`cube_polygons` (all in the same local frame).
+    """
+    s = (points * normal).sum(1) + offset
+    q = points - s[:, None] * normal
+    return np.sqrt(s * s + _outside_distance_sq(q, normal, verts))
+
+
+def _outside_distance_sq(q: np.ndarray, normal: np.ndarray, verts: np.ndarray) -> np.ndarray:
+    """Squared distance from in-plane points ``q`` to their convex polygons (0 inside)."""
+    a = verts
+    b = np.roll(verts, -1, axis=1)
+    e = b - a                                                           # (K, 6, 3)
+    r = q[:, None] - a
+    side = np.einsum("kij,kj->ki", np.cross(e, r), normal)
+    inside = (side >= -1e-12 * np.einsum("kij,kij->ki", e, e).max(1, initial=0)[:, None]).all(1)
+    ee = np.einsum("kij,kij->ki", e, e)
+    t = np.clip(np.einsum("kij,kij->ki", r, e) / np.where(ee > 0, ee, 1.0), 0.0, 1.0)
+    d = r - t[..., None] * e
+    dist2 = np.einsum("kij,kij->ki", d, d).min(1)
+    return np.where(inside, 0.0, dist2)
+
+
+def polygon_probes(normal: np.ndarray, offset: np.ndarray, verts: np.ndarray,
+                   count: np.ndarray, size: float, spacing: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Points covering each polygon: its boundary and a square grid, both at ``spacing``.
+
+    All polygons lie in cubes of the same ``size``.  Every point of a polygon is within about
+    ``spacing / sqrt(2)`` of a probe.  Returns probe points (P, 3) in each octant's local frame
+    and the index (P,) of the polygon each belongs to, grouped by polygon.
+    """
+    m = len(normal)
+    u, v = plane_basis(normal)
+    radius = np.sqrt(3.0) / 2.0 * size
+    k = int(np.ceil(2.0 * radius / spacing)) + 1
+    g = np.linspace(-radius, radius, k)
+    gu, gv = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
+    foot = -offset[:, None] * normal                                     # (M, 3)
+    # Boundary: E samples per edge (E fixed per call so the arrays stay rectangular).
+    e = int(np.ceil(np.sqrt(2.0) * size / spacing))
+    t = np.arange(e) / e
+    a, b = verts, np.roll(verts, -1, axis=1)
+    edge = a[:, :, None] + t[None, None, :, None] * (b - a)[:, :, None]  # (M, 6, E, 3)
+    valid_edge = np.arange(MAX_POLYGON)[None] < count[:, None]
+    out_pts, out_idx = [], []
+    chunk = max(1, 2_000_000 // max(k * k, 1))
+    half = size / 2.0 * (1.0 + 1e-9)
+    for s in range(0, m, chunk):
+        sl = slice(s, min(m, s + chunk))
+        pts = foot[sl, None] + gu[None, :, None] * u[sl, None] + gv[None, :, None] * v[sl, None]
+        inside = (np.abs(pts) <= half).all(2)
+        mi, gi = np.nonzero(inside)
+        out_pts.append(pts[mi, gi])
+        out_idx.append(mi + s)
+    mi, ki = np.nonzero(valid_edge)
+    out_pts.append(edge[mi, ki].reshape(-1, 3))
+    out_idx.append(np.repeat(mi, e))
+    pts, idx = np.concatenate(out_pts), np.concatenate(out_idx)
+    order = np.argsort(idx, kind="stable")
+    return pts[order], idx[order]

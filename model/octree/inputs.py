@@ -1,0 +1,168 @@
+"""Reading the octree's inputs: meshes (sampled densely) and point clouds, with or without normals."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import OctreeInputError
+from .pointcloud import CUBE_FILL, PointCloud, validate
+
+MESH_EXTENSIONS = (".obj", ".off", ".stl", ".glb", ".gltf", ".ply")
+POINT_EXTENSIONS = (".xyz", ".txt", ".pts", ".npy", ".npz", ".ply")
+SAMPLES_PER_VOXEL_EDGE = 3
+"""Default mesh sampling: spacing of 1/3 finest voxel, so sampling gaps stay well below delta hat."""
+MAX_DEFAULT_POINTS = 2_000_000
+MIN_DEFAULT_POINTS = 20_000
+
+
+@dataclass(frozen=True)
+class LoadedInput:
+    """An input turned into oriented points, with how it was obtained."""
+
+    cloud: PointCloud
+    kind: str                       # "mesh" or "points"
+    sample_spacing: float | None    # known spacing of mesh samples (input units), else None
+    normals_estimated: bool
+
+
+def load_input(path: str, depth: int, n_points: int | None = None, seed: int = 0) -> LoadedInput:
+    """Oriented points of any mesh trimesh reads, or of a point cloud file.
+
+    Meshes are sampled uniformly by area with face normals; ``n_points`` defaults to a spacing
+    of 1/3 finest voxel at ``depth``.  Point clouds without normals get estimated normals.
+    """
+    if not os.path.isfile(path):
+        raise OctreeInputError(f"{path}: no such file")
+    if os.path.getsize(path) == 0:
+        raise OctreeInputError(f"{path}: the file is empty")
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in MESH_EXTENSIONS + POINT_EXTENSIONS:
+        raise OctreeInputError(
+            f"{path}: unknown format '{ext}'; use a mesh ({', '.join(MESH_EXTENSIONS)}) or a point "
+            f"cloud ({', '.join(POINT_EXTENSIONS)})")
+    if n_points is not None and n_points < 3:
+        raise OctreeInputError(f"--points must be at least 3, got {n_points}")
+    if ext in (".xyz", ".txt", ".pts"):
+        return _points(_read_text(path), path)
+    if ext == ".npy":
+        return _points(_read_npy(path), path)
+    if ext == ".npz":
+        return _read_npz(path)
+    return _read_trimesh(path, depth, n_points, seed)
+
+
+def _points(arr: np.ndarray, path: str) -> LoadedInput:
+    if arr.ndim != 2 or arr.shape[1] not in (3, 6):
+        raise OctreeInputError(
+            f"{path}: expected N rows of 3 (x y z) or 6 (x y z nx ny nz) numbers, got shape {arr.shape}")
+    normals = arr[:, 3:6] if arr.shape[1] == 6 else None
+    return LoadedInput(validate(arr[:, :3], normals), "points", None, normals is None)
+
+
+def _read_text(path: str) -> np.ndarray:
+    try:
+        with open(path, "r", encoding="utf-8") as fh:
+            rows = [ln.replace(",", " ").split() for ln in fh
+                    if ln.strip() and not ln.lstrip().startswith(("#", "//"))]
+    except UnicodeDecodeError:
+        raise OctreeInputError(f"{path}: not a text point cloud (binary content)") from None
+    if not rows:
+        raise OctreeInputError(f"{path}: no points in the file")
+    widths = {len(r) for r in rows}
+    if len(widths) != 1:
+        raise OctreeInputError(f"{path}: rows have different numbers of columns {sorted(widths)}")
+    try:
+        return np.asarray(rows, dtype=np.float64)
+    except ValueError:
+        raise OctreeInputError(f"{path}: found a value that is not a number") from None
+
+
+def _read_npy(path: str) -> np.ndarray:
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except (ValueError, OSError) as exc:
+        raise OctreeInputError(f"{path}: not a readable .npy array ({exc})") from None
+    if not np.issubdtype(arr.dtype, np.number):
+        raise OctreeInputError(f"{path}: the array holds {arr.dtype}, not numbers")
+    return arr.astype(np.float64)
+
+
+def _read_npz(path: str) -> LoadedInput:
+    try:
+        data = np.load(path, allow_pickle=False)
+        names = list(data.keys())
+    except (ValueError, OSError) as exc:
+        raise OctreeInputError(f"{path}: not a readable .npz archive ({exc})") from None
+    pkey = next((k for k in ("points", "xyz", "pos", "positions") if k in names), None)
+    if pkey is None:
+        raise OctreeInputError(f"{path}: needs an array named 'points' (found {names})")
+    nkey = next((k for k in ("normals", "normal", "nrm") if k in names), None)
+    pts = np.asarray(data[pkey], dtype=np.float64)
+    if nkey is None:
+        return _points(pts, path)
+    nrm = np.asarray(data[nkey], dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise OctreeInputError(f"{path}: '{pkey}' must be (N, 3), got {pts.shape}")
+    return LoadedInput(validate(pts, nrm), "points", None, False)
+
+
+def _read_trimesh(path: str, depth: int, n_points: int | None, seed: int) -> LoadedInput:
+    import trimesh
+
+    try:
+        obj = trimesh.load(path, process=False)
+    except Exception as exc:  # trimesh raises many types for corrupt files
+        raise OctreeInputError(f"{path}: cannot be read as a mesh or point cloud ({type(exc).__name__}: {exc})") from None
+    if isinstance(obj, trimesh.Scene):
+        geoms = [g for g in obj.dump() if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+        if not geoms:
+            geoms = [g for g in obj.dump() if isinstance(g, trimesh.PointCloud)]
+            if not geoms:
+                raise OctreeInputError(f"{path}: the file holds no triangles or points")
+            obj = geoms[0]
+        else:
+            obj = trimesh.util.concatenate(geoms)
+    if isinstance(obj, trimesh.PointCloud) or (isinstance(obj, trimesh.Trimesh) and len(obj.faces) == 0):
+        return _ply_points(obj, path)
+    if not isinstance(obj, trimesh.Trimesh):
+        raise OctreeInputError(f"{path}: unsupported content ({type(obj).__name__})")
+    return _sample_mesh(obj, path, depth, n_points, seed)
+
+
+def _ply_points(obj, path: str) -> LoadedInput:
+    pts = np.asarray(obj.vertices, dtype=np.float64)
+    if len(pts) == 0:
+        raise OctreeInputError(f"{path}: the file holds no points")
+    normals = None
+    raw = obj.metadata.get("_ply_raw", {}).get("vertex", {}).get("data") if hasattr(obj, "metadata") else None
+    if raw is not None and all(k in raw.dtype.names for k in ("nx", "ny", "nz")):
+        normals = np.stack([raw["nx"], raw["ny"], raw["nz"]], axis=1).astype(np.float64)
+        if len(normals) != len(pts):
+            normals = None
+    return LoadedInput(validate(pts, normals), "points", None, normals is None)
+
+
+def _sample_mesh(mesh, path: str, depth: int, n_points: int | None, seed: int) -> LoadedInput:
+    import trimesh
+
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    if not np.isfinite(v).all():
+        raise OctreeInputError(f"{path}: the mesh has NaN or infinite vertex coordinates")
+    area = mesh.area_faces
+    good = np.isfinite(area) & (area > 0)
+    if not good.any():
+        raise OctreeInputError(f"{path}: every triangle has zero area; nothing to sample")
+    total = float(area[good].sum())
+    if n_points is None:
+        extent = float((v.max(0) - v.min(0)).max())
+        h = extent / CUBE_FILL / (1 << depth)
+        spacing = h / SAMPLES_PER_VOXEL_EDGE
+        n_points = int(np.clip(np.ceil(total / spacing ** 2), MIN_DEFAULT_POINTS, MAX_DEFAULT_POINTS))
+    faces = np.flatnonzero(good)
+    sub = trimesh.Trimesh(vertices=v, faces=np.asarray(mesh.faces)[faces], process=False)
+    pts, fid = trimesh.sample.sample_surface(sub, n_points, seed=seed)
+    normals = sub.face_normals[fid]
+    return LoadedInput(validate(pts, normals), "mesh", float(np.sqrt(total / n_points)), False)

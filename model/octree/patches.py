@@ -1,0 +1,88 @@
+"""Leaf patches of an octree: planar polygons (plane ∩ octant cube) and their triangle mesh."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .geometry import MAX_POLYGON, cube_polygons
+from .octree import LEAF, Octree
+
+DEPTH_COLORS = np.array([
+    [68, 1, 84], [72, 35, 116], [64, 67, 135], [52, 94, 141], [41, 120, 142], [32, 144, 140],
+    [34, 167, 132], [68, 190, 112], [121, 209, 81], [189, 222, 38], [253, 231, 37],
+    [254, 196, 39], [251, 155, 6], [237, 105, 37], [212, 72, 66], [180, 54, 121], [140, 41, 129],
+], dtype=np.uint8)
+"""A viridis-like colour per depth 0..16, for looking at which depth each patch came from."""
+
+
+@dataclass
+class PatchSet:
+    """Leaf patches in cube coordinates: convex polygons of 3..6 vertices (padded to 6)."""
+
+    vertices: np.ndarray   # (P, 6, 3) float64, counter-clockwise about the normal
+    count: np.ndarray      # (P,) int vertices per polygon
+    normal: np.ndarray     # (P, 3) float64 unit normals
+    offset: np.ndarray     # (P,) plane offset relative to the octant centre (cube units)
+    center: np.ndarray     # (P, 3) octant centres
+    size: np.ndarray       # (P,) octant edge lengths
+    depth: np.ndarray      # (P,) int
+    batch: np.ndarray      # (P,) int
+    error: np.ndarray      # (P,) patch error (cube units; NaN if not measured)
+
+    def __len__(self) -> int:
+        return len(self.count)
+
+
+def leaf_patches(octree: Octree) -> PatchSet:
+    """The planar patch of every leaf (label LEAF) of every depth, for all shapes of the batch."""
+    parts = []
+    for lv in octree.levels:
+        sel = np.flatnonzero(lv.label == LEAF)
+        if len(sel) == 0:
+            continue
+        normal = lv.plane[sel, :3].astype(np.float64)
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+        offset = lv.plane_offsets()[sel]
+        centre = lv.centers()[sel]
+        verts, count = cube_polygons(normal, offset, lv.size)
+        parts.append((verts + centre[:, None], count, normal, offset, centre,
+                      np.full(len(sel), lv.size), np.full(len(sel), lv.depth),
+                      lv.batch[sel], lv.error[sel].astype(np.float64)))
+    if not parts:
+        e = np.zeros((0,))
+        return PatchSet(np.zeros((0, MAX_POLYGON, 3)), e.astype(int), np.zeros((0, 3)), e,
+                        np.zeros((0, 3)), e, e.astype(int), e.astype(int), e)
+    cols = [np.concatenate(c) for c in zip(*parts)]
+    return PatchSet(*cols)
+
+
+def patch_triangles(patches: PatchSet) -> tuple[np.ndarray, np.ndarray]:
+    """Fan triangulation: vertices (V, 3) and faces (F, 3) whose normals follow each patch's n."""
+    p = len(patches)
+    verts = patches.vertices.reshape(-1, 3)
+    i = np.arange(1, MAX_POLYGON - 1)
+    faces = np.stack([np.zeros_like(i), i, i + 1], axis=1)               # (4, 3)
+    faces = faces[None] + (np.arange(p) * MAX_POLYGON)[:, None, None]    # (P, 4, 3)
+    keep = i[None] + 1 < patches.count[:, None]                          # triangle (0, i, i+1)
+    return verts, faces[keep]
+
+
+def patches_to_mesh(octree: Octree, color_by_depth: bool = False, world: bool = True):
+    """A trimesh of all leaf patches, in the input's coordinates (one shape) unless ``world`` is False."""
+    import trimesh
+
+    patches = leaf_patches(octree)
+    verts, faces = patch_triangles(patches)
+    if world:
+        if octree.batch_size != 1:
+            raise ValueError("world coordinates need a single-shape octree; pass world=False")
+        verts = octree.normalizations[0].to_world(verts)
+    colors = None
+    if color_by_depth and len(faces):
+        depth_per_face = np.repeat(patches.depth, np.maximum(patches.count - 2, 0))
+        colors = np.concatenate([DEPTH_COLORS[np.minimum(depth_per_face, 16)],
+                                 np.full((len(faces), 1), 255, np.uint8)], axis=1)
+    mesh = trimesh.Trimesh(vertices=verts, faces=faces, face_colors=colors, process=False)
+    return mesh

@@ -1,0 +1,35 @@
+import numpy as np
+import pytest
+
+from model.octree import keys
+
+
+def test_encode_decode_round_trip_with_batch():
+    rng = np.random.default_rng(1)
+    xyz = rng.integers(0, 1 << 16, size=(5000, 3))
+    batch = rng.integers(0, 1 << 15, size=5000)
+    k = keys.encode(xyz, batch)
+    xyz2, batch2 = keys.decode(k)
+    assert np.array_equal(xyz, xyz2) and np.array_equal(batch, batch2)
+
+
+def test_children_are_consecutive_keys_and_slots_are_4x_2y_z():
+    parent = np.array([[3, 5, 7]])
+    pk = keys.encode(parent)[0]
+    children = np.array([[6 + (s >> 2), 10 + ((s >> 1) & 1), 14 + (s & 1)] for s in range(8)])
+    ck = keys.encode(children)
+    assert np.array_equal(ck, (pk << np.uint64(3)) + np.arange(8, dtype=np.uint64))
+    assert np.array_equal(keys.parent_keys(ck), np.full(8, pk))
+
+
+def test_batch_bits_sort_shape_major_and_survive_parent():
+    k = keys.encode(np.array([[9, 9, 9], [0, 0, 0]]), np.array([0, 1]))
+    assert k[0] < k[1]
+    assert np.array_equal(keys.batch_of(keys.parent_keys(k, 3)), [0, 1])
+
+
+def test_depth_10_coordinates_fit_and_out_of_range_is_rejected():
+    top = np.array([[1023, 1023, 1023]])
+    assert np.array_equal(keys.decode(keys.encode(top))[0], top)
+    with pytest.raises(ValueError):
+        keys.encode(np.array([[1 << 16, 0, 0]]))
