@@ -94,12 +94,11 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
     with timer("moments"):
         moments = _aggregate(pts, nrm, key, depth)
 
-    settings = tree = None
+    settings = None
     if adaptive or measure_leaves:
-        with timer("kdtree"):
-            tree = cKDTree(pts, leafsize=16, balanced_tree=False, compact_nodes=False)
+        with timer("spacing"):
             spacing = (sample_spacing / norm.scale if sample_spacing is not None
-                       else _estimate_spacing(tree, pts))
+                       else _estimate_spacing(pts))
         settings = PatchErrorSettings(threshold=threshold * h_fine, gap=spacing,
                                       probe_spacing=h_fine)
 
@@ -133,7 +132,7 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
         elif lv < adaptive_depth or not adaptive:
             split = nonempty.copy()
         else:
-            err = _patch_errors(pts, nrm, tree, settings, centre, normal, offset, size,
+            err = _patch_errors(pts, nrm, settings, centre, normal, offset, size,
                                 mom.start[ne], mom.count[ne], exact=False, timer=timer)
             error[nonempty] = err
             split = nonempty.copy()
@@ -145,7 +144,7 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
             sel = np.flatnonzero(np.isnan(error[nonempty]) & (label[nonempty] == LEAF))
             if len(sel):
                 error[np.flatnonzero(nonempty)[sel]] = _patch_errors(
-                    pts, nrm, tree, settings, centre[sel], normal[sel], offset[sel], size,
+                    pts, nrm, settings, centre[sel], normal[sel], offset[sel], size,
                     mom.start[ne[sel]], mom.count[ne[sel]], exact=True, timer=timer)
 
         with timer("structure"):
@@ -226,8 +225,9 @@ def _ranges(start: np.ndarray, count: np.ndarray) -> np.ndarray:
     return np.repeat(start - offs, count) + np.arange(total)
 
 
-def _estimate_spacing(tree: cKDTree, pts: np.ndarray) -> float:
+def _estimate_spacing(pts: np.ndarray) -> float:
     """Typical sample spacing: twice the mean nearest-neighbour distance (1/sqrt(density))."""
+    tree = cKDTree(pts, leafsize=16, balanced_tree=False, compact_nodes=False)
     sub = pts[:: max(1, len(pts) // 4000)]
     d, _ = tree.query(sub, k=2)
     d = d[:, 1]
@@ -235,7 +235,7 @@ def _estimate_spacing(tree: cKDTree, pts: np.ndarray) -> float:
     return float(2.0 * d.mean()) if len(d) else 0.0
 
 
-def _patch_errors(pts, nrm, tree: cKDTree, cfg: PatchErrorSettings, centre, normal, offset,
+def _patch_errors(pts, nrm, cfg: PatchErrorSettings, centre, normal, offset,
                   size: float, start, count, *, exact: bool, timer: _Timer) -> np.ndarray:
     """Hausdorff distance between each octant's planar patch and its points (paper's delta_O).
 
@@ -271,31 +271,22 @@ def _patch_errors(pts, nrm, tree: cKDTree, cfg: PatchErrorSettings, centre, norm
         if len(todo) == 0:
             return err
         spacing = max(cfg.probe_spacing, size / 32.0)
-        probes, pid = polygon_probes(normal[todo], offset[todo], verts[todo], nvert[todo],
-                                     size, spacing)
+        probes, pid, edge_dist = polygon_probes(normal[todo], offset[todo], verts[todo],
+                                                nvert[todo], size, spacing)
         oct_id = todo[pid]
-        query = probes + centre[oct_id]
-        # Random samples leave gaps: among K probes over true surface the farthest sees its
-        # nearest sample about spacing * sqrt(ln K / pi) away (Poisson statistics).  The gap
-        # tolerance is that distance at its 99% quantile, for each octant's own probe count.
         first = np.flatnonzero(np.r_[True, oct_id[1:] != oct_id[:-1]])
         n_probes = np.diff(np.r_[first, len(oct_id)])
-        gap = cfg.gap * np.sqrt(np.log(100.0 * n_probes) / np.pi)
-        gap_p = np.repeat(gap, n_probes)
-        bound = np.inf if exact else float(np.hypot(cfg.threshold, gap.max()))
-        d, j = tree.query(query, k=1, distance_upper_bound=bound, workers=-1)
-        # The local surface is the octant's points, plus those within a gap tolerance outside
-        # its cube (evidence of surface at the boundary, where gaps are one-sided).  A nearest
-        # sample farther out belongs to another part of the shape: ask the octant's own points.
-        hit = np.isfinite(d)
-        foreign = np.zeros(len(d), dtype=bool)
-        foreign[hit] = (np.abs(pts[j[hit]] - centre[oct_id[hit]])
-                        > (size / 2.0 + gap_p[hit])[:, None]).any(1)
-        if foreign.any():
-            f = np.flatnonzero(foreign)
-            d[f] = _nearest_in_octant(pts, idx, owner, query[f], oct_id[f], bound)
+        # Random samples leave gaps: among K probes over true surface the farthest sees its
+        # nearest sample about spacing * sqrt(ln K / pi) away (Poisson statistics); the gap
+        # tolerance is that distance at its 99% quantile for each octant's probe count.
+        tol = np.repeat(cfg.gap * np.sqrt(np.log(100.0 * n_probes) / np.pi), n_probes)
+        # Near the cube's boundary a probe sees samples on one side only: half the density, so
+        # gaps sqrt(2) times wider.  The factor fades in over one tolerance from the boundary.
+        tol *= np.sqrt(2.0) - (np.sqrt(2.0) - 1.0) * np.clip(edge_dist / tol, 0.0, 1.0)
+        bound = np.inf if exact else float(np.hypot(cfg.threshold, tol.max()))
+        d = _nearest_in_octant(pts, idx, owner, probes + centre[oct_id], oct_id, bound)
         # Removing the tolerance in quadrature forgives gaps without hiding real overhangs.
-        ps = np.sqrt(np.maximum(d * d - gap_p * gap_p, 0.0))
+        ps = np.sqrt(np.maximum(d * d - tol * tol, 0.0))
         err[oct_id[first]] = np.maximum(err[oct_id[first]], np.maximum.reduceat(ps, first))
     return err
 
@@ -306,7 +297,9 @@ def _nearest_in_octant(pts, idx, owner, query, oct_id, bound: float) -> np.ndarr
     Every involved octant is moved to its own place along x (octant i by i * _SEPARATION), so
     one k-d tree answers all of them and no query can reach another octant's points.
     """
-    keep = np.isin(owner, np.unique(oct_id))
+    wanted = np.zeros(int(owner.max()) + 1 if len(owner) else 0, dtype=bool)
+    wanted[oct_id] = True
+    keep = wanted[owner]
     moved = pts[idx[keep]]
     moved[:, 0] += owner[keep] * _SEPARATION
     q = query.copy()

@@ -179,12 +179,13 @@ def _outside_distance_sq(q: np.ndarray, normal: np.ndarray, verts: np.ndarray) -
 
 def polygon_probes(normal: np.ndarray, offset: np.ndarray, verts: np.ndarray,
                    count: np.ndarray, size: float, spacing: float
-                   ) -> tuple[np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Points covering each polygon: its boundary and a square grid, both at ``spacing``.
 
     All polygons lie in cubes of the same ``size``.  Every point of a polygon is within about
-    ``spacing / sqrt(2)`` of a probe.  Returns probe points (P, 3) in each octant's local frame
-    and the index (P,) of the polygon each belongs to, grouped by polygon.
+    ``spacing / sqrt(2)`` of a probe.  Returns probe points (P, 3) in each octant's local frame,
+    the index (P,) of the polygon each belongs to (grouped by polygon), and each probe's
+    in-plane distance to the polygon's boundary (P,).
     """
     m = len(normal)
     u, v = plane_basis(normal)
@@ -214,4 +215,9 @@ def polygon_probes(normal: np.ndarray, offset: np.ndarray, verts: np.ndarray,
     out_idx.append(np.repeat(mi, e))
     pts, idx = np.concatenate(out_pts), np.concatenate(out_idx)
     order = np.argsort(idx, kind="stable")
-    return pts[order], idx[order]
+    pts, idx = pts[order], idx[order]
+    # The polygon's edges lie on the cube's faces: in the plane, face i is (h/2 - |y_i|) away
+    # divided by the sine of the angle between the plane and that face.
+    sine = np.sqrt(np.maximum(1.0 - normal[idx] ** 2, 1e-12))
+    edge_dist = np.maximum((size / 2.0 - np.abs(pts)) / sine, 0.0).min(1)
+    return pts, idx, edge_dist

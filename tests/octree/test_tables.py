@@ -1,0 +1,62 @@
+import numpy as np
+import trimesh
+
+from model.octree import build_octree, keys
+from model.octree.batch import merge_octrees
+from model.octree.neighbors import CENTER
+
+from .conftest import mesh_points, shared_mesh, sphere_points
+
+
+def neighbors_by_key_search(level) -> np.ndarray:
+    """Independent reference: look every 3x3x3 neighbour key up among the level's keys."""
+    xyz, batch = keys.decode(level.key)
+    res = 1 << level.depth
+    out = np.full((len(level), 27), -1, dtype=np.int64)
+    for o in range(27):
+        d = np.array([o // 9, (o // 3) % 3, o % 3]) - 1
+        q = xyz + d
+        ok = np.all((q >= 0) & (q < res), axis=1)
+        k = keys.encode(np.clip(q, 0, res - 1), batch)
+        pos = np.minimum(np.searchsorted(level.key, k), len(level) - 1)
+        hit = ok & (level.key[pos] == k)
+        out[hit, o] = pos[hit]
+    return out
+
+
+def test_neighbor_tables_match_key_search_at_every_depth():
+    pts, nrm = sphere_points(30_000)
+    o = build_octree((pts, nrm), 6)
+    for lv in o.levels:
+        assert lv.neighbors.dtype == np.int32
+        assert np.array_equal(lv.neighbors, neighbors_by_key_search(lv))
+        assert np.array_equal(lv.neighbors[:, CENTER], np.arange(len(lv)))
+
+
+def test_batched_tables_equal_per_shape_tables_offset_and_never_cross_shapes():
+    box = trimesh.creation.box(extents=(1.0, 0.5, 0.3))
+    shapes = [sphere_points(20_000), mesh_points(box, 20_000),
+              mesh_points(trimesh.load(shared_mesh("mn40_chair_0002.off"), force="mesh"), 20_000)]
+    singles = [build_octree(s, 6, adaptive=(i != 1)) for i, s in enumerate(shapes)]
+    merged = merge_octrees(singles)
+    assert merged.batch_size == 3
+    for d in range(7):
+        lv = merged.levels[d]
+        parts = [s.levels[d] for s in singles]
+        n_off = np.cumsum([0] + [len(p) for p in parts])[:-1]
+        c_off = np.cumsum([0] + [int((p.child >= 0).sum()) for p in parts])[:-1]
+        assert np.array_equal(lv.batch, np.repeat(np.arange(3), [len(p) for p in parts]))
+        for b, (p, n0, c0) in enumerate(zip(parts, n_off, c_off)):
+            sl = slice(n0, n0 + len(p))
+            assert np.array_equal(lv.neighbors[sl], np.where(p.neighbors >= 0, p.neighbors + n0, -1))
+            assert np.array_equal(lv.child[sl], np.where(p.child >= 0, p.child + c0, -1))
+            assert np.array_equal(lv.plane[sl], p.plane)
+            assert np.array_equal(lv.label[sl], p.label)
+            valid = lv.neighbors[sl] >= 0
+            assert np.all(lv.batch[lv.neighbors[sl][valid]] == b)
+        assert np.array_equal(lv.neighbors, neighbors_by_key_search(lv))
+        if d > 0:
+            up = merged.levels[d - 1]
+            split = np.flatnonzero(up.child >= 0)
+            assert np.array_equal(lv.parent, np.repeat(split, 8))
+            assert np.array_equal(keys.parent_keys(lv.key), up.key[lv.parent])
