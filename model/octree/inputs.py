@@ -137,11 +137,14 @@ def _ply_points(obj, path: str) -> LoadedInput:
     if len(pts) == 0:
         raise OctreeInputError(f"{path}: the file holds no points")
     normals = None
-    raw = obj.metadata.get("_ply_raw", {}).get("vertex", {}).get("data") if hasattr(obj, "metadata") else None
-    if raw is not None and all(k in raw.dtype.names for k in ("nx", "ny", "nz")):
-        normals = np.stack([raw["nx"], raw["ny"], raw["nz"]], axis=1).astype(np.float64)
-        if len(normals) != len(pts):
-            normals = None
+    raw = getattr(obj, "metadata", {}).get("_ply_raw", {}).get("vertex", {}).get("data")
+    if raw is not None:
+        # trimesh keeps PLY vertex properties as a structured array or a dict of columns.
+        names = raw.dtype.names if hasattr(raw, "dtype") else tuple(raw.keys())
+        if names and all(k in names for k in ("nx", "ny", "nz")):
+            normals = np.stack([np.asarray(raw[k], dtype=np.float64).ravel() for k in ("nx", "ny", "nz")], axis=1)
+            if len(normals) != len(pts):
+                normals = None
     return LoadedInput(validate(pts, normals), "points", None, normals is None)
 
 

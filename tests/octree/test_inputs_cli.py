@@ -1,0 +1,148 @@
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+
+from model.octree import OctreeInputError, estimate_normals
+from model.octree.__main__ import main
+from model.octree.inputs import load_input
+
+from .conftest import shared_mesh, sphere_points
+
+REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def write_ply_points(path, pts, nrm=None):
+    cloud = trimesh.PointCloud(pts)
+    if nrm is None:
+        cloud.export(path)
+        return
+    header = ("ply\nformat ascii 1.0\nelement vertex %d\nproperty float x\nproperty float y\n"
+              "property float z\nproperty float nx\nproperty float ny\nproperty float nz\nend_header\n")
+    with open(path, "w") as fh:
+        fh.write(header % len(pts))
+        np.savetxt(fh, np.c_[pts, nrm], fmt="%.7f")
+
+
+@pytest.mark.parametrize("fmt", ["xyz", "txt", "npy", "npz", "ply"])
+def test_point_clouds_with_normals_load_in_every_format(tmp_path, fmt):
+    pts, nrm = sphere_points(3000)
+    path = tmp_path / f"cloud.{fmt}"
+    if fmt in ("xyz", "txt"):
+        np.savetxt(path, np.c_[pts, nrm], delimiter="," if fmt == "txt" else " ")
+    elif fmt == "npy":
+        np.save(path, np.c_[pts, nrm])
+    elif fmt == "npz":
+        np.savez(path, points=pts, normals=nrm)
+    else:
+        write_ply_points(path, pts, nrm)
+    loaded = load_input(str(path), 5)
+    assert loaded.kind == "points" and not loaded.normals_estimated
+    assert np.allclose(loaded.cloud.points, pts, atol=1e-6)
+    assert np.allclose(loaded.cloud.normals, nrm, atol=1e-5)
+
+
+def test_points_without_normals_get_consistent_outward_normals(tmp_path):
+    pts, truth = sphere_points(20_000)
+    box = trimesh.creation.box(extents=(2, 1, 0.5))
+    bp, fid = trimesh.sample.sample_surface(box, 20_000, seed=1)
+    for p, t in ((pts, truth), (bp, box.face_normals[fid])):
+        n = estimate_normals(p)
+        agree = (n * t).sum(1)
+        assert np.mean(agree > 0) > 0.995       # oriented outward, not just up to sign
+        assert np.mean(agree > 0.9) > 0.93      # PCA blends the faces within k points of an edge
+    np.savetxt(tmp_path / "s.xyz", pts)
+    loaded = load_input(str(tmp_path / "s.xyz"), 5)
+    assert loaded.normals_estimated
+    assert np.mean((loaded.cloud.normals * truth).sum(1) > 0.9) > 0.97
+
+
+def test_meshes_are_sampled_densely_enough_for_the_depth():
+    path = shared_mesh("mn40_chair_0002.off")
+    a = load_input(path, 5)
+    b = load_input(path, 6)
+    assert a.kind == "mesh" and b.sample_spacing < a.sample_spacing
+    mesh = trimesh.load(path, force="mesh")
+    h6 = (mesh.extents.max() / 0.96) / 64
+    assert b.sample_spacing <= h6 / 3 * 1.01 or len(b.cloud) == 2_000_000
+    assert len(load_input(path, 6, n_points=5000).cloud) == 5000
+
+
+@pytest.mark.parametrize("content,ext,msg", [
+    (b"", ".obj", "empty"),
+    (b"hello", ".xyz2", "unknown format"),
+    (b"1 2 3\n4 5 nan\n7 8 9\n1 1 1\n", ".xyz", "NaN"),
+    (b"1 2 3\n4 5 6\n", ".xyz", "at least 3"),
+    (b"1 1 1\n1 1 1\n1 1 1\n1 1 1\n", ".xyz", "identical"),
+    (b"0 0 0\n1 1 1\n2 2 2\n3 3 3\n", ".xyz", "collinear"),
+    (b"0 0 0 0 0 0\n1 0 0 0 0 1\n0 1 0 0 0 1\n1 1 0 0 0 1\n", ".xyz", "zero length"),
+    (b"1 2\n3 4\n5 6\n", ".txt", r"3 \(x y z\) or 6"),
+    (b"1 2 3\n4 5\n", ".txt", "different numbers of columns"),
+    (b"a b c\nd e f\ng h i\n", ".xyz", "not a number"),
+    (b"\x00\x01\x02\xff\xfe" * 50, ".xyz", "binary"),
+    (b"solid x\nendsolid x\n", ".stl", "empty|no triangles|cannot be read"),
+    (b"v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", ".obj", "zero area"),
+    (b"garbage that is not a mesh", ".ply", "cannot be read"),
+])
+def test_bad_files_raise_one_clear_error(tmp_path, content, ext, msg):
+    path = tmp_path / f"bad{ext}"
+    path.write_bytes(content)
+    with pytest.raises(OctreeInputError, match=msg):
+        load_input(str(path), 5)
+
+
+def test_cli_writes_mesh_and_stats_in_input_coordinates(tmp_path):
+    src = shared_mesh("mn40_chair_0002.off")
+    out, stats = tmp_path / "chair.glb", tmp_path / "stats.json"
+    assert main([src, "--depth", "6", "--out", str(out), "--stats", str(stats), "--color-by-depth"]) == 0
+    s = json.loads(stats.read_text())
+    for key in ("depth", "adaptive", "threshold", "nodes_per_depth", "nonempty_per_depth",
+                "leaves_per_depth", "max_patch_error", "seconds"):
+        assert key in s
+    mesh_in = trimesh.load(src, force="mesh")
+    h = mesh_in.extents.max() / 0.96 / 64
+    assert s["depth"] == 6 and s["adaptive"] is True
+    assert np.isclose(s["threshold"], np.sqrt(3) / 2 * h, rtol=1e-6)
+    assert s["max_patch_error_above_max_depth"] <= s["threshold"]
+    assert len(s["nodes_per_depth"]) == 7 and s["nodes_per_depth"][2] == 64
+    assert sum(s["leaves_per_depth"]) == s["patches"]
+    out_mesh = trimesh.load(out, force="mesh")
+    assert np.allclose(out_mesh.bounds, mesh_in.bounds, atol=2 * h)
+    full_stats = tmp_path / "full.json"
+    assert main([src, "--depth", "6", "--full", "--out", str(tmp_path / "f.ply"), "--stats", str(full_stats)]) == 0
+    f = json.loads(full_stats.read_text())
+    assert f["adaptive"] is False and sum(f["nodes_per_depth"]) > sum(s["nodes_per_depth"])
+    assert f["leaves_per_depth"][:-1] == [0] * 6
+
+
+@pytest.mark.parametrize("args,msg", [
+    (["missing.obj", "--depth", "5", "--out", "{tmp}/o.ply"], "no such file"),
+    (["{mesh}", "--depth", "5", "--out", "{tmp}/o.xyz"], "--out must end"),
+    (["{mesh}", "--depth", "0", "--out", "{tmp}/o.ply"], "--depth"),
+    (["{mesh}", "--depth", "5", "--out", "{tmp}/nodir/o.ply"], "does not exist"),
+    (["{mesh}", "--depth", "5", "--threshold", "-1", "--out", "{tmp}/o.ply"], "threshold"),
+    (["{mesh}", "--depth", "5", "--points", "2", "--out", "{tmp}/o.ply"], "--points"),
+])
+def test_cli_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, args, msg):
+    mesh = shared_mesh("mn40_chair_0002.off")
+    argv = [a.format(tmp=tmp_path, mesh=mesh) for a in args]
+    proc = subprocess.run([sys.executable, "-m", "model.octree", *argv], cwd=REPO,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and msg in lines[0] and "Traceback" not in proc.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_keeps_an_existing_output_when_the_input_is_bad(tmp_path):
+    out = tmp_path / "keep.ply"
+    out.write_bytes(b"previous result")
+    bad = tmp_path / "bad.xyz"
+    bad.write_text("1 2 3\n")
+    assert main([str(bad), "--depth", "5", "--out", str(out)]) == 2
+    assert out.read_bytes() == b"previous result"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.xyz", "keep.ply"]
