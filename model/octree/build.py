@@ -178,15 +178,18 @@ def _sorted_points(cube: np.ndarray, normals: np.ndarray, depth: int):
 
 def _aggregate(pts: np.ndarray, nrm: np.ndarray, key: np.ndarray, depth: int) -> list[_Moments]:
     """Point moments of every non-empty octant at every depth, finest first, then upward."""
-    c = pts - 0.5
-    x, y, z = c[:, 0], c[:, 1], c[:, 2]
-    cols = np.stack([x, y, z, x * x, x * y, x * z, y * y, y * z, z * z,
-                     nrm[:, 0], nrm[:, 1], nrm[:, 2]], axis=1)
+    # Rows x y z, xx xy xz yy yz zz, nx ny nz of every point (coordinates - 0.5 for precision).
+    cols = np.empty((12, len(pts)))
+    np.subtract(pts.T, 0.5, out=cols[:3])
+    x, y, z = cols[0], cols[1], cols[2]
+    for row, (a, b) in enumerate(((x, x), (x, y), (x, z), (y, y), (y, z), (z, z)), start=3):
+        np.multiply(a, b, out=cols[row])
+    cols[9:] = nrm.T
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     count = np.diff(np.r_[starts, len(key)])
     levels: list[_Moments | None] = [None] * (depth + 1)
     levels[depth] = _Moments(key=key[starts], count=count,
-                             sums=np.ascontiguousarray(np.add.reduceat(cols, starts, axis=0).T),
+                             sums=np.add.reduceat(cols, starts, axis=1),
                              start=starts)
     for lv in range(depth - 1, -1, -1):
         fine = levels[lv + 1]

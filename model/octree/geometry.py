@@ -74,31 +74,46 @@ def fit_planes(count: np.ndarray, s1: np.ndarray, s2: np.ndarray, nsum: np.ndarr
     """
     m = s1 / count
     cov = s2 / count - m[[0, 0, 0, 1, 1, 2]] * m[[0, 1, 2, 1, 2, 2]]
-    vals = symmetric_eigen(cov)
-    normal = eigenvector(cov, vals[2])
-    # The closed-form eigenvalues carry sqrt(eps) relative error near a double root; one
-    # Rayleigh-quotient step makes the smallest one accurate before taking its vector again.
-    normal = eigenvector(cov, _rayleigh(cov, normal))
-    # Spread along the second axis below ~0.03% of the first: a line (or a point), no plane.
-    degenerate = (vals[1] <= 1e-7 * vals[0]) | (vals[0] <= 0)
-    nsum = np.ascontiguousarray(nsum.T)
+    normal = np.empty((len(count), 3))
+    degenerate = count < 3
+    full = np.flatnonzero(~degenerate)
+    if len(full):
+        c = cov[:, full]
+        vals = symmetric_eigen(c)
+        v = eigenvector(c, vals[2])
+        # The closed-form eigenvalues carry sqrt(eps) relative error near a double root; one
+        # Rayleigh-quotient step makes the smallest one accurate before taking its vector again.
+        normal[full] = eigenvector(c, _rayleigh(c, v))
+        # Spread along the second axis below ~0.03% of the first: a line (or a point), no plane.
+        degenerate[full] = (vals[1] <= 1e-7 * vals[0]) | (vals[0] <= 0)
     if degenerate.any():
-        # A line (or a single point) does not define a plane: take the average input normal,
-        # minus its component along the line (coordinates are in the unit cube, so 1e-20 is
-        # far below any octant's size squared).
-        d = eigenvector(cov[:, degenerate], vals[0, degenerate])
-        a = nsum[degenerate]
-        a = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-300)
-        line = vals[0, degenerate] > 1e-20
-        a = np.where(line[:, None], a - (a * d).sum(1, keepdims=True) * d, a)
-        an = np.linalg.norm(a, axis=1, keepdims=True)
-        helper = np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-        perp = np.cross(d, helper)
-        perp /= np.linalg.norm(perp, axis=1, keepdims=True)
-        normal[degenerate] = np.where(an > 1e-12, a / np.maximum(an, 1e-300), perp)
-    flip = (normal * nsum).sum(1) < 0
+        normal[degenerate] = _line_normals(cov[:, degenerate], nsum[:, degenerate])
+    flip = np.einsum("mj,jm->m", normal, nsum) < 0
     normal[flip] *= -1.0
     return normal, np.ascontiguousarray(m.T), degenerate
+
+
+def _line_normals(cov: np.ndarray, nsum: np.ndarray) -> np.ndarray:
+    """Normals for points on a line (or one point): the average normal minus its part along the line.
+
+    For collinear points the covariance is ``s^2 u u^T``, so its column with the largest diagonal
+    entry points along the line ``u`` (coordinates are in the unit cube: 1e-20 is far below any
+    octant's size squared, so smaller spreads count as a single point).
+    """
+    diag = cov[[0, 3, 5]]
+    col = np.argmax(diag, axis=0)
+    rows = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])[col].T              # (3, K)
+    u = np.take_along_axis(cov, rows, axis=0).T                             # (K, 3)
+    un = np.linalg.norm(u, axis=1, keepdims=True)
+    line = diag.max(0) > 1e-20
+    u = u / np.where(un > 0, un, 1.0)
+    a = nsum.T / np.maximum(np.linalg.norm(nsum.T, axis=1, keepdims=True), 1e-300)
+    a = np.where(line[:, None], a - (a * u).sum(1, keepdims=True) * u, a)
+    an = np.linalg.norm(a, axis=1, keepdims=True)
+    helper = np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    perp = np.cross(np.where(line[:, None], u, [[0.0, 0.0, 1.0]]), helper)
+    perp /= np.linalg.norm(perp, axis=1, keepdims=True)
+    return np.where(an > 1e-12, a / np.maximum(an, 1e-300), perp)
 
 
 def _rayleigh(c: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -39,13 +39,18 @@ def build_neighbors(octree: Octree) -> None:
     root = np.full((len(levels[0]), 27), -1, dtype=np.int32)
     root[:, CENTER] = np.arange(len(levels[0]), dtype=np.int32)
     levels[0].neighbors = root
+    slot = _SLOT.astype(np.int32)
     for lv in range(1, len(levels)):
         up = levels[lv - 1]
-        split = np.flatnonzero(up.child >= 0)
-        pn = up.neighbors[split]                                   # (K, 27)
-        ch = np.where(pn >= 0, up.child[pn], -1)
-        # First child of each neighbouring parent, or a large negative sentinel when absent.
-        base = np.where(ch >= 0, ch * 8, np.int32(-(1 << 30))).astype(np.int32)
-        out = base[:, _PARENT_COL] + _SLOT.astype(np.int32)        # (K, 216)
+        # First child of every node (8k), a large negative sentinel for nodes without children,
+        # and one more sentinel at index -1 so that a missing neighbour (-1) reads it too.
+        first = np.append(np.where(up.child >= 0, up.child * 8, _NONE).astype(np.int32), _NONE)
+        parent_neigh = np.take(up.neighbors, np.flatnonzero(up.child >= 0), axis=0)   # (K, 27)
+        base = np.take(first, parent_neigh)                                           # (K, 27)
+        out = np.take(base, _PARENT_COL, axis=1)                                       # (K, 216)
+        out += slot
         np.maximum(out, -1, out=out)
         levels[lv].neighbors = out.reshape(-1, 27)
+
+
+_NONE = np.int32(-(1 << 30))
