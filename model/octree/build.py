@@ -117,8 +117,8 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
         npts = np.zeros(n, dtype=np.int32)
         npts[nonempty] = mom.count[ne]
         with timer("planes"):
-            normal, centroid, _ = fit_planes(mom.count[ne], mom.sums[:3, ne], mom.sums[3:9, ne],
-                                             mom.sums[9:, ne])
+            sums = np.take(mom.sums, ne, axis=1)
+            normal, centroid, _ = fit_planes(mom.count[ne], sums[:3], sums[3:9], sums[9:])
             centre = (morton.decode(node_key[nonempty])[0] + 0.5) * size
             offset = (normal * (centre - (centroid + 0.5))).sum(1)
             plane[nonempty, :3] = normal
@@ -172,12 +172,16 @@ def _sorted_points(cube: np.ndarray, normals: np.ndarray, depth: int):
     res = 1 << depth
     ijk = np.clip((cube * res).astype(np.int64), 0, res - 1)
     key = morton.encode(ijk)
-    order = np.argsort(key, kind="stable")
+    order = np.argsort(key)              # the order of points inside one voxel does not matter
     return cube[order], normals[order], key[order]
 
 
 def _aggregate(pts: np.ndarray, nrm: np.ndarray, key: np.ndarray, depth: int) -> list[_Moments]:
-    """Point moments of every non-empty octant at every depth, finest first, then upward."""
+    """Point moments of every non-empty octant at every depth, finest first, then upward.
+
+    Sums are taken segment by segment (not as differences of prefix sums), so a one-point
+    octant has exactly zero spread at any depth.
+    """
     # Rows x y z, xx xy xz yy yz zz, nx ny nz of every point (coordinates - 0.5 for precision).
     cols = np.empty((12, len(pts)))
     np.subtract(pts.T, 0.5, out=cols[:3])
@@ -189,8 +193,7 @@ def _aggregate(pts: np.ndarray, nrm: np.ndarray, key: np.ndarray, depth: int) ->
     count = np.diff(np.r_[starts, len(key)])
     levels: list[_Moments | None] = [None] * (depth + 1)
     levels[depth] = _Moments(key=key[starts], count=count,
-                             sums=np.add.reduceat(cols, starts, axis=1),
-                             start=starts)
+                             sums=np.add.reduceat(cols, starts, axis=1), start=starts)
     for lv in range(depth - 1, -1, -1):
         fine = levels[lv + 1]
         pk = fine.key >> np.uint64(3)
@@ -228,14 +231,21 @@ def _ranges(start: np.ndarray, count: np.ndarray) -> np.ndarray:
     return np.repeat(start - offs, count) + np.arange(total)
 
 
-def _estimate_spacing(pts: np.ndarray) -> float:
-    """Typical sample spacing: twice the mean nearest-neighbour distance (1/sqrt(density))."""
-    tree = cKDTree(pts, leafsize=16, balanced_tree=False, compact_nodes=False)
-    sub = pts[:: max(1, len(pts) // 4000)]
-    d, _ = tree.query(sub, k=2)
-    d = d[:, 1]
-    d = d[d > 0]
-    return float(2.0 * d.mean()) if len(d) else 0.0
+def _estimate_spacing(pts: np.ndarray, thin_to: int = 25_000) -> float:
+    """Typical sample spacing 1/sqrt(density), from nearest neighbours in a random thinning.
+
+    A random thinning to fraction f of any point set is close to Poisson, whose mean
+    nearest-neighbour distance is 1/(2 sqrt(f density)); this also avoids a tree over all points.
+    """
+    rng = np.random.default_rng(0)
+    f = min(1.0, thin_to / len(pts))
+    sub = pts[rng.random(len(pts)) < f] if f < 1.0 else pts
+    if len(sub) < 2:
+        return 0.0
+    tree = cKDTree(sub, leafsize=16, balanced_tree=False, compact_nodes=False)
+    d, _ = tree.query(sub[:: max(1, len(sub) // 4000)], k=2)
+    d = d[:, 1][d[:, 1] > 0]
+    return float(2.0 * d.mean() * np.sqrt(f)) if len(d) else 0.0
 
 
 def _patch_errors(pts, nrm, cfg: PatchErrorSettings, centre, normal, offset,

@@ -98,22 +98,31 @@ def _line_normals(cov: np.ndarray, nsum: np.ndarray) -> np.ndarray:
 
     For collinear points the covariance is ``s^2 u u^T``, so its column with the largest diagonal
     entry points along the line ``u`` (coordinates are in the unit cube: 1e-20 is far below any
-    octant's size squared, so smaller spreads count as a single point).
+    octant's size squared, so smaller spreads count as a single point).  Works on contiguous
+    component rows; this runs for most octants at the max depth.
     """
-    diag = cov[[0, 3, 5]]
-    col = np.argmax(diag, axis=0)
-    rows = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])[col].T              # (3, K)
-    u = np.take_along_axis(cov, rows, axis=0).T                             # (K, 3)
-    un = np.linalg.norm(u, axis=1, keepdims=True)
-    line = diag.max(0) > 1e-20
-    u = u / np.where(un > 0, un, 1.0)
-    a = nsum.T / np.maximum(np.linalg.norm(nsum.T, axis=1, keepdims=True), 1e-300)
-    a = np.where(line[:, None], a - (a * u).sum(1, keepdims=True) * u, a)
-    an = np.linalg.norm(a, axis=1, keepdims=True)
-    helper = np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    perp = np.cross(np.where(line[:, None], u, [[0.0, 0.0, 1.0]]), helper)
-    perp /= np.linalg.norm(perp, axis=1, keepdims=True)
-    return np.where(an > 1e-12, a / np.maximum(an, 1e-300), perp)
+    xx, xy, xz, yy, yz, zz = cov
+    use_y = yy > xx
+    use_z = zz > np.maximum(xx, yy)
+    u = np.stack([np.where(use_z, xz, np.where(use_y, xy, xx)),
+                  np.where(use_z, yz, np.where(use_y, yy, xy)),
+                  np.where(use_z, zz, np.where(use_y, yz, xz))])
+    un = np.sqrt((u * u).sum(0))
+    line = (np.maximum(np.maximum(xx, yy), zz) > 1e-20) & (un > 0)
+    u /= np.where(un > 0, un, 1.0)
+    a = nsum / np.maximum(np.sqrt((nsum * nsum).sum(0)), 1e-300)
+    a -= np.where(line, (a * u).sum(0), 0.0) * u
+    an = np.sqrt((a * a).sum(0))
+    ok = an > 1e-12
+    a /= np.where(ok, an, 1.0)
+    if not ok.all():
+        # The average normal vanishes (or lies along the line): any direction across the line.
+        bad = np.flatnonzero(~ok)
+        ub = np.where(line[bad], u[:, bad], [[0.0], [0.0], [1.0]]).T
+        helper = np.where(np.abs(ub[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+        perp = np.cross(ub, helper)
+        a[:, bad] = (perp / np.linalg.norm(perp, axis=1, keepdims=True)).T
+    return np.ascontiguousarray(a.T)
 
 
 def _rayleigh(c: np.ndarray, v: np.ndarray) -> np.ndarray:

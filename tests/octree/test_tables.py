@@ -60,3 +60,19 @@ def test_batched_tables_equal_per_shape_tables_offset_and_never_cross_shapes():
             split = np.flatnonzero(up.child >= 0)
             assert np.array_equal(lv.parent, np.repeat(split, 8))
             assert np.array_equal(keys.parent_keys(lv.key), up.key[lv.parent])
+
+
+def test_octree_round_trips_through_flat_arrays(tmp_path):
+    from model.octree.serialize import octree_from_arrays, octree_to_arrays
+
+    pts, nrm = sphere_points(20_000)
+    o = merge_octrees([build_octree((pts, nrm), 6), build_octree((pts * 2, nrm), 6)])
+    np.savez(tmp_path / "o.npz", **octree_to_arrays(o, prefix="ad_"))
+    with np.load(tmp_path / "o.npz") as f:
+        back = octree_from_arrays(f, prefix="ad_")
+    assert back.batch_size == 2 and back.adaptive and back.threshold == o.threshold
+    for a, b in zip(o.levels, back.levels):
+        for name in ("key", "label", "child", "parent", "plane", "npoints", "neighbors"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+        assert np.array_equal(a.error, b.error, equal_nan=True)
+    assert np.allclose(back.normalizations[1].scale, 2 * o.normalizations[0].scale)

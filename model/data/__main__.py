@@ -1,0 +1,88 @@
+"""Command line for the training data.
+
+    python -m model.data build --out DIR --per-category N --depth D [--seed S] [--workers K]
+                              [--categories chair table ...] [--views 24] [--partial 2]
+    python -m model.data build --out DIR --source modelnet40|shapenet|r2n2 --root PATH
+                              [--shapenet-root PATH] [--per-category N] --depth D ...
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+from .dataset import SOURCES, BuildConfig, build_dataset, layout_tasks, procedural_tasks
+from .shapes import CATEGORIES
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog="python -m model.data", description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="command", required=True)
+    b = sub.add_parser("build", help="build (or resume) a dataset of per-shape records and a manifest")
+    b.add_argument("--out", required=True, help="dataset folder (created; a partial build there is resumed)")
+    b.add_argument("--source", choices=SOURCES, default="procedural")
+    b.add_argument("--root", help="dataset root for --source modelnet40, shapenet or r2n2")
+    b.add_argument("--shapenet-root", help="ShapeNetCore.v2 root holding the meshes of --source r2n2")
+    b.add_argument("--per-category", type=int, default=None,
+                   help="shapes per category (required for procedural; a cap for real datasets)")
+    b.add_argument("--categories", nargs="+", default=None, help="only these categories")
+    b.add_argument("--depth", type=int, default=6, help="octree depth of the records (default 6)")
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 1)),
+                   help="worker processes (default: all cores)")
+    b.add_argument("--views", type=int, default=24, help="renders per shape (default 24)")
+    b.add_argument("--render-size", type=int, default=137)
+    b.add_argument("--partial", type=int, default=2, help="partial scans per shape (default 2)")
+    b.add_argument("--scan-resolution", type=int, default=160, help="rays per side of each scanner view")
+    b.add_argument("--quiet", action="store_true", help="no progress bar")
+    return ap.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> dict:
+    if not 2 <= args.depth <= 10:
+        raise ValueError(f"--depth must be in 2..10, got {args.depth}")
+    if args.per_category is not None and args.per_category < 1:
+        raise ValueError(f"--per-category must be at least 1, got {args.per_category}")
+    for name in ("workers", "views", "render_size", "scan_resolution"):
+        if getattr(args, name) < 1:
+            raise ValueError(f"--{name.replace('_', '-')} must be at least 1")
+    if args.partial < 0:
+        raise ValueError("--partial must be 0 or more")
+    cats = tuple(args.categories) if args.categories else None
+    if args.source == "procedural":
+        if args.per_category is None:
+            raise ValueError("--per-category is required for procedural shapes")
+        if cats:
+            unknown = sorted(set(cats) - set(CATEGORIES))
+            if unknown:
+                raise ValueError(f"unknown categories {unknown}; valid: {', '.join(CATEGORIES)}")
+        tasks = procedural_tasks(args.per_category, args.seed, cats or CATEGORIES)
+    else:
+        if not args.root:
+            raise ValueError(f"--root is required for --source {args.source}")
+        tasks = layout_tasks(args.source, args.root, args.per_category, cats, args.shapenet_root)
+        if not tasks:
+            raise ValueError(f"no shapes found under {args.root} for --source {args.source}")
+    cfg = BuildConfig(depth=args.depth, views=args.views, render_size=args.render_size,
+                      partial_scans=args.partial, scan_resolution=args.scan_resolution, seed=args.seed)
+    return build_dataset(args.out, tasks, cfg, workers=args.workers, progress=not args.quiet)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    t = time.perf_counter()
+    try:
+        manifest = run(args)
+    except (ValueError, FileNotFoundError, NotADirectoryError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    n = len(manifest["records"])
+    minutes = (time.perf_counter() - t) / 60
+    print(f"{args.out}: {n} records ({manifest['splits']}), {minutes:.1f} min")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

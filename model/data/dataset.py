@@ -1,0 +1,290 @@
+"""Dataset build: one compact .npz record per shape and a manifest, resumable and crash-safe.
+
+A record holds the complete virtual scan (points, normals), the adaptive and the full octree at
+the dataset's depth, 3D-R2N2-style renders with their cameras, and partial scans for shape
+completion.  Shapes come from the procedural categories or from a real dataset layout
+(ModelNet40, ShapeNetCore.v2, 3D-R2N2); every source gives the same record format.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import tempfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from ..octree import build_octree
+from ..octree.serialize import octree_from_arrays, octree_to_arrays
+from .layouts import iter_modelnet40, iter_r2n2, iter_shapenet, load_mesh
+from .partial import partial_from_scan
+from .render import metadata_row, render_views
+from .scanner import scan_detailed
+from .shapes import CATEGORIES, check_category, generate, split_of, stable_hash
+
+RECORD_VERSION = 1
+SOURCES = ("procedural", "modelnet40", "shapenet", "r2n2")
+
+
+@dataclass(frozen=True)
+class BuildConfig:
+    """What every record of a dataset is built with; stored in the manifest and each record."""
+
+    depth: int = 6
+    views: int = 24
+    render_size: int = 137
+    partial_scans: int = 2
+    scan_resolution: int = 160
+    seed: int = 0
+
+    def fingerprint(self) -> str:
+        return hashlib.sha256(json.dumps(asdict(self), sort_keys=True).encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class ShapeTask:
+    """One shape to build: where its mesh (and, for 3D-R2N2, its renders) come from."""
+
+    source: str
+    category: str
+    shape_id: str
+    split: str
+    index: int = -1                                  # procedural shapes
+    mesh_path: str = ""                              # real datasets
+    image_paths: tuple[str, ...] = ()                # 3D-R2N2 renders
+    cameras: tuple[tuple[float, ...], ...] = field(default=())
+
+    @property
+    def relpath(self) -> str:
+        return f"records/{self.category}/{self.shape_id}.npz"
+
+
+def procedural_tasks(per_category: int, seed: int = 0,
+                     categories: tuple[str, ...] = CATEGORIES) -> list[ShapeTask]:
+    """The first ``per_category`` generated shapes of each category."""
+    return [ShapeTask("procedural", check_category(c), f"{c}_{seed}_{i:05d}", split_of(c, i, seed), index=i)
+            for c in categories for i in range(per_category)]
+
+
+def layout_tasks(source: str, root: str, per_category: int | None = None,
+                 categories: tuple[str, ...] | None = None, shapenet_root: str | None = None) -> list[ShapeTask]:
+    """Tasks for the shapes of a real dataset layout found under ``root``."""
+    if source == "modelnet40":
+        recs = [(r, (), ()) for r in iter_modelnet40(root)]
+    elif source == "shapenet":
+        recs = [(r, (), ()) for r in iter_shapenet(root)]
+    elif source == "r2n2":
+        recs = [(r, tuple(str(p) for p in r.image_paths), tuple(tuple(_row(m)) for m in r.metadata))
+                for r in iter_r2n2(root, shapenet_root=shapenet_root)]
+        missing = [r.shape_id for r, _, _ in recs if r.mesh_path is None]
+        if missing:
+            raise ValueError(f"{len(missing)} 3D-R2N2 shapes have no mesh (e.g. {missing[0]}); "
+                             "pass the ShapeNetCore.v2 root with --shapenet-root")
+    else:
+        raise ValueError(f"unknown source {source!r}; use one of {', '.join(SOURCES)}")
+    tasks, seen = [], {}
+    for rec, images, cameras in recs:
+        if categories and rec.category not in categories:
+            continue
+        seen[rec.category] = seen.get(rec.category, 0) + 1
+        if per_category is not None and seen[rec.category] > per_category:
+            continue
+        tasks.append(ShapeTask(source, rec.category, rec.shape_id, rec.split,
+                               mesh_path=str(rec.mesh_path), image_paths=images, cameras=cameras))
+    return tasks
+
+
+def _row(meta) -> list[float]:
+    return [meta.azimuth, meta.elevation, meta.in_plane_rotation, meta.distance_ratio, meta.fov]
+
+
+def unit_mesh(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """The mesh centred with its longest bounding-box edge 1 (ShapeNet's model_normalized
+    convention), and (centre, scale) that map it back."""
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    lo, hi = v.min(0), v.max(0)
+    scale = float((hi - lo).max())
+    if not np.isfinite(scale) or scale <= 0:
+        raise ValueError("the mesh has no extent")
+    centre = (lo + hi) / 2
+    out = trimesh.Trimesh(vertices=(v - centre) / scale, faces=np.asarray(mesh.faces), process=False)
+    return out, np.r_[centre, scale]
+
+
+def build_record(task: ShapeTask, cfg: BuildConfig) -> dict[str, np.ndarray]:
+    """All arrays of one shape's record (see the module docstring)."""
+    rng = np.random.default_rng(stable_hash("record", task.source, task.category, task.shape_id, cfg.seed))
+    mesh = generate(task.category, task.index, cfg.seed) if task.source == "procedural" else load_mesh(task.mesh_path)
+    mesh, mesh_norm = unit_mesh(mesh)
+    full_scan = scan_detailed(mesh, resolution=cfg.scan_resolution, rng=rng)
+    cloud = (full_scan.points, full_scan.normals)
+    adaptive = build_octree(cloud, cfg.depth, adaptive=True, neighbors=False)
+    full = build_octree(cloud, cfg.depth, adaptive=False, neighbors=False)
+    if task.source == "r2n2":
+        images, cameras = _read_r2n2_views(task)
+    else:
+        images, cams = render_views(mesh, n_views=cfg.views, rng=rng, size=cfg.render_size)
+        cameras = np.array([metadata_row(c) for c in cams], dtype=np.float32).reshape(-1, 5)
+    partial_pts, partial_nrm, offsets = [], [], [0]
+    for _ in range(cfg.partial_scans):
+        p, n, _ = partial_from_scan(full_scan, rng)
+        partial_pts.append(p)
+        partial_nrm.append(n)
+        offsets.append(offsets[-1] + len(p))
+    return {
+        "version": np.array(RECORD_VERSION),
+        "config": np.array(cfg.fingerprint()),
+        "category": np.array(task.category), "shape_id": np.array(task.shape_id),
+        "split": np.array(task.split), "source": np.array(task.source),
+        "mesh_normalization": mesh_norm,
+        "points": full_scan.points.astype(np.float32), "normals": full_scan.normals.astype(np.float32),
+        "images": images, "cameras": cameras,
+        "partial_points": np.concatenate(partial_pts) if partial_pts else np.zeros((0, 3), np.float32),
+        "partial_normals": np.concatenate(partial_nrm) if partial_nrm else np.zeros((0, 3), np.float32),
+        "partial_offsets": np.array(offsets, dtype=np.int64),
+        **octree_to_arrays(adaptive, prefix="adaptive_"),
+        **octree_to_arrays(full, prefix="full_"),
+    }
+
+
+def _read_r2n2_views(task: ShapeTask) -> tuple[np.ndarray, np.ndarray]:
+    from PIL import Image
+
+    images = np.stack([np.asarray(Image.open(p).convert("RGBA")) for p in task.image_paths])
+    return images, np.array(task.cameras, dtype=np.float32).reshape(-1, 5)
+
+
+def write_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> str:
+    """Write a compressed .npz beside ``path`` under a temporary name, then rename; returns sha256."""
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    data = buf.getvalue()
+    _write_atomic(path, data)
+    return hashlib.sha256(data).hexdigest()
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+@dataclass
+class RecordSummary:
+    """One manifest row."""
+
+    category: str
+    shape_id: str
+    split: str
+    path: str
+    sha256: str
+    points: int
+    adaptive_nodes: int
+    full_nodes: int
+
+
+def _summary(task: ShapeTask, path: Path, sha: str, arrays) -> RecordSummary:
+    return RecordSummary(task.category, task.shape_id, task.split, task.relpath, sha,
+                         int(len(arrays["points"])), int(len(arrays["adaptive_key"])),
+                         int(len(arrays["full_key"])))
+
+
+def _existing(out: Path, task: ShapeTask, cfg: BuildConfig) -> RecordSummary | None:
+    """The summary of a finished record built with the same config, or None to (re)build it."""
+    path = out / task.relpath
+    if not path.is_file():
+        return None
+    try:
+        data = path.read_bytes()
+        with np.load(io.BytesIO(data)) as f:
+            if str(f["config"]) != cfg.fingerprint() or int(f["version"]) != RECORD_VERSION:
+                return None
+            return _summary(task, path, hashlib.sha256(data).hexdigest(), f)
+    except Exception:  # an unreadable file is rebuilt
+        return None
+
+
+def _work(args: tuple[str, ShapeTask, BuildConfig]) -> RecordSummary:
+    out, task, cfg = args
+    arrays = build_record(task, cfg)
+    path = Path(out) / task.relpath
+    sha = write_npz_atomic(path, arrays)
+    return _summary(task, path, sha, arrays)
+
+
+def build_dataset(out: str | Path, tasks: list[ShapeTask], cfg: BuildConfig, workers: int = 1,
+                  progress: bool = True) -> dict:
+    """Build every task's record under ``out`` (skipping finished ones) and write the manifest."""
+    from tqdm import tqdm
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    for tmp in out.rglob(".tmp-*"):          # leftovers of a killed build
+        tmp.unlink()
+    done, todo = [], []
+    for t in tasks:
+        s = _existing(out, t, cfg)
+        (done if s is not None else todo).append(s if s is not None else t)
+    bar = tqdm(total=len(tasks), initial=len(done), desc="shapes", unit="shape", disable=not progress)
+    jobs = [(str(out), t, cfg) for t in todo]
+    if workers > 1 and len(jobs) > 1:
+        import multiprocessing as mp
+
+        with mp.get_context("fork").Pool(workers) as pool:
+            for s in pool.imap_unordered(_work, jobs):
+                done.append(s)
+                bar.update()
+    else:
+        for j in jobs:
+            done.append(_work(j))
+            bar.update()
+    bar.close()
+    done.sort(key=lambda s: (s.category, s.shape_id))
+    manifest = {
+        "version": RECORD_VERSION,
+        "config": asdict(cfg),
+        "config_fingerprint": cfg.fingerprint(),
+        "splits": {sp: sum(1 for s in done if s.split == sp) for sp in ("train", "val", "test")},
+        "records": [asdict(s) for s in done],
+    }
+    _write_atomic(out / "manifest.json", (json.dumps(manifest, indent=1) + "\n").encode())
+    return manifest
+
+
+@dataclass
+class ShapeRecord:
+    """A loaded record: arrays plus helpers to rebuild its octrees and partial scans."""
+
+    arrays: dict[str, np.ndarray]
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.arrays[name]
+
+    def octree(self, kind: str = "adaptive", neighbors: bool = True):
+        if kind not in ("adaptive", "full"):
+            raise ValueError("kind must be 'adaptive' or 'full'")
+        return octree_from_arrays(self.arrays, prefix=f"{kind}_", neighbors=neighbors)
+
+    def partial(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        o = self.arrays["partial_offsets"]
+        return self.arrays["partial_points"][o[i]:o[i + 1]], self.arrays["partial_normals"][o[i]:o[i + 1]]
+
+
+def load_record(path: str | Path) -> ShapeRecord:
+    """Read one record written by :func:`build_dataset`."""
+    with np.load(path) as f:
+        return ShapeRecord({k: f[k] for k in f.files})

@@ -1,0 +1,132 @@
+"""The dataset build: records, manifest, resume after a kill, and real layouts in the same format."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from model.data.dataset import BuildConfig, build_dataset, layout_tasks, load_record, procedural_tasks
+from model.octree import LEAF
+
+from .test_layouts import CUBE_OFF_BODY, _write
+
+REPO = Path(__file__).resolve().parents[2]
+SMALL = BuildConfig(depth=5, views=2, render_size=32, partial_scans=2, scan_resolution=64)
+
+
+def test_records_hold_scan_octrees_renders_and_partial_scans(tmp_path):
+    tasks = procedural_tasks(1, categories=("chair", "airplane"))
+    manifest = build_dataset(tmp_path, tasks, SMALL, workers=1, progress=False)
+    assert [r["category"] for r in manifest["records"]] == ["airplane", "chair"]
+    assert sum(manifest["splits"].values()) == 2
+    assert json.loads((tmp_path / "manifest.json").read_text()) == manifest
+    for row in manifest["records"]:
+        rec = load_record(tmp_path / row["path"])
+        assert str(rec["category"]) == row["category"] and len(rec["points"]) == row["points"] > 1000
+        pts = rec["points"]
+        assert np.abs(pts).max() <= 0.5 + 1e-3                     # unit bounding box, centred
+        ad, full = rec.octree("adaptive"), rec.octree("full")
+        assert ad.depth == full.depth == 5 and ad.adaptive and not full.adaptive
+        assert sum(ad.nodes_per_depth()) < sum(full.nodes_per_depth()) == row["full_nodes"]
+        assert all(lv.neighbors is not None for lv in ad.levels)
+        assert any(np.any(lv.label == LEAF) for lv in ad.levels[:-1])
+        assert rec["images"].shape == (2, 32, 32, 4) and rec["cameras"].shape == (2, 5)
+        assert rec["images"][..., 3].max() == 255 and rec["images"][:, 0, 0, 3].max() == 0
+        for i in range(2):
+            p, n = rec.partial(i)
+            assert 0 < len(p) < len(pts) and p.shape == n.shape
+        import hashlib
+        assert hashlib.sha256((tmp_path / row["path"]).read_bytes()).hexdigest() == row["sha256"]
+
+
+def test_build_is_deterministic_and_resume_skips_finished_records(tmp_path):
+    tasks = procedural_tasks(1, seed=3, categories=("table", "lamp"))
+    build_dataset(tmp_path / "a", tasks, SMALL, progress=False)
+    build_dataset(tmp_path / "b", tasks, SMALL, progress=False)
+    for t in tasks:
+        a, b = load_record(tmp_path / "a" / t.relpath), load_record(tmp_path / "b" / t.relpath)
+        for k in ("points", "adaptive_key", "full_plane", "images", "partial_points"):
+            assert np.array_equal(a[k], b[k]), k
+    before = {t.relpath: os.stat(tmp_path / "a" / t.relpath).st_mtime_ns for t in tasks}
+    (tmp_path / "a" / tasks[0].relpath).write_bytes(b"corrupt")     # a damaged record is rebuilt
+    build_dataset(tmp_path / "a", tasks, SMALL, progress=False)
+    after = {t.relpath: os.stat(tmp_path / "a" / t.relpath).st_mtime_ns for t in tasks}
+    assert after[tasks[1].relpath] == before[tasks[1].relpath]
+    assert load_record(tmp_path / "a" / tasks[0].relpath)["points"].shape[1] == 3
+    # A changed configuration rebuilds everything.
+    other = BuildConfig(depth=4, views=1, render_size=16, partial_scans=0, scan_resolution=48)
+    m = build_dataset(tmp_path / "a", tasks, other, progress=False)
+    assert all(load_record(tmp_path / "a" / r["path"]).octree().depth == 4 for r in m["records"])
+
+
+def test_a_killed_build_leaves_no_corrupt_record_and_resumes(tmp_path):
+    out = tmp_path / "ds"
+    cmd = [sys.executable, "-m", "model.data", "build", "--out", str(out), "--per-category", "2",
+           "--categories", "chair", "table", "sofa", "--depth", "5", "--views", "2",
+           "--render-size", "32", "--partial", "1", "--scan-resolution", "64", "--workers", "1", "--quiet"]
+    proc = subprocess.Popen(cmd, cwd=REPO)
+    deadline = time.time() + 120
+    while time.time() < deadline and len(list(out.glob("records/*/*.npz"))) < 2:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    done = sorted(out.glob("records/*/*.npz"))
+    assert 2 <= len(done) < 6 and not (out / "manifest.json").exists()
+    for path in done:                                   # every finished file is a whole record
+        assert load_record(path)["points"].ndim == 2
+    mtimes = {p: p.stat().st_mtime_ns for p in done}
+    assert subprocess.run(cmd, cwd=REPO).returncode == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert len(manifest["records"]) == 6
+    assert all(p.stat().st_mtime_ns == t for p, t in mtimes.items())     # not rebuilt
+    assert not list(out.rglob(".tmp-*"))
+
+
+def test_real_layouts_build_records_of_the_same_format(tmp_path):
+    mn = tmp_path / "ModelNet40"
+    _write(mn / "chair" / "train" / "chair_0001.off", "OFF8 6 0\n" + CUBE_OFF_BODY)
+    _write(mn / "table" / "test" / "table_0400.off", "OFF\n8 6 0\n" + CUBE_OFF_BODY)
+    r2n2, sn = tmp_path / "ShapeNetRendering", tmp_path / "ShapeNetCore.v2"
+    model = "1a2b3c"
+    _write(sn / "03001627" / model / "models" / "model_normalized.obj",
+           "\n".join(f"v {x} {y} {z}" for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)) + "\n"
+           + "f 1 2 4\nf 1 4 3\nf 5 7 8\nf 5 8 6\nf 1 5 6\nf 1 6 2\nf 3 4 8\nf 3 8 7\nf 1 3 7\nf 1 7 5\nf 2 6 8\nf 2 8 4\n")
+    rend = r2n2 / "03001627" / model / "rendering"
+    rend.mkdir(parents=True)
+    for i in range(3):
+        Image.fromarray(np.full((137, 137, 4), 40 * i, np.uint8)).save(rend / f"{i:02d}.png")
+    (rend / "rendering_metadata.txt").write_text("".join(f"{30 * i} 25 0 0.8 25\n" for i in range(3)))
+    (rend / "renderings.txt").write_text("".join(f"{i:02d}.png\n" for i in range(3)))
+    keys = None
+    for source, root, extra in (("modelnet40", mn, {}), ("r2n2", r2n2, {"shapenet_root": str(sn)})):
+        tasks = layout_tasks(source, str(root), **extra)
+        m = build_dataset(tmp_path / source, tasks, SMALL, progress=False)
+        assert len(m["records"]) == len(tasks) > 0
+        rec = load_record(tmp_path / source / m["records"][0]["path"])
+        keys = set(rec.arrays) if keys is None else keys
+        assert set(rec.arrays) == keys                                  # one record format
+        assert rec.octree().depth == 5
+        if source == "r2n2":
+            assert rec["images"].shape == (3, 137, 137, 4)
+            assert np.allclose(rec["cameras"][:, 0], [0, 30, 60])
+    with pytest.raises(ValueError, match="no mesh"):
+        layout_tasks("r2n2", str(r2n2))
+
+
+def test_cli_reports_bad_arguments_in_one_line(tmp_path):
+    for args, msg in ((["--per-category", "1", "--depth", "1"], "--depth"),
+                      (["--depth", "5"], "--per-category"),
+                      (["--per-category", "1", "--categories", "spaceship"], "unknown categories"),
+                      (["--source", "modelnet40", "--per-category", "1"], "--root"),
+                      (["--source", "modelnet40", "--root", str(tmp_path / "none")], "")):
+        proc = subprocess.run([sys.executable, "-m", "model.data", "build", "--out", str(tmp_path / "o"), *args],
+                              cwd=REPO, capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2, proc.stderr
+        assert len(proc.stderr.strip().splitlines()) == 1 and msg in proc.stderr
