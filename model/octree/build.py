@@ -208,8 +208,7 @@ def _aggregate(pts: np.ndarray, nrm: np.ndarray, key: np.ndarray, depth: int) ->
 def _children(node_key, node_ne, split_idx, mom: _Moments, fine: _Moments):
     """Keys of the 8 children of each split node and their indices into the finer moments."""
     k = len(split_idx)
-    child_key = ((node_key[split_idx] << np.uint64(3))[:, None]
-                 | np.arange(8, dtype=np.uint64)[None]).ravel()
+    child_key = morton.child_keys(node_key[split_idx])
     child_ne = np.full(8 * k, -1, dtype=np.int64)
     parent_ne = node_ne[split_idx]
     has = parent_ne >= 0

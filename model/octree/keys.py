@@ -68,3 +68,11 @@ def parent_keys(keys: np.ndarray, levels: int = 1) -> np.ndarray:
     keys = np.asarray(keys, dtype=np.uint64)
     batch = keys & ~_MORTON_MASK
     return batch | ((keys & _MORTON_MASK) >> np.uint64(3 * levels))
+
+
+def child_keys(keys: np.ndarray) -> np.ndarray:
+    """Keys (8N,) of the 8 children of each key, in slot order, batch bits kept."""
+    keys = np.asarray(keys, dtype=np.uint64)
+    batch = keys & ~_MORTON_MASK
+    inner = (keys & _MORTON_MASK) << np.uint64(3)
+    return ((batch | inner)[:, None] | np.arange(8, dtype=np.uint64)[None]).ravel()

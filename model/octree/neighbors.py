@@ -33,24 +33,36 @@ def _lookup_tables() -> tuple[np.ndarray, np.ndarray]:
 _PARENT_COL, _SLOT = _lookup_tables()
 
 
+def root_neighbors(n_roots: int) -> np.ndarray:
+    """Neighbour table of the roots of ``n_roots`` shapes: each is its only neighbour."""
+    root = np.full((n_roots, 27), -1, dtype=np.int32)
+    root[:, CENTER] = np.arange(n_roots, dtype=np.int32)
+    return root
+
+
+def child_neighbors(neighbors: np.ndarray, child: np.ndarray) -> np.ndarray:
+    """Neighbour table (8K, 27) of the children of a depth from its table and ``child`` map.
+
+    ``child`` (N,) holds k for the k-th split node (children 8k..8k+7) and -1 elsewhere.
+    """
+    # First child of every node (8k), a large negative sentinel for nodes without children,
+    # and one more sentinel at index -1 so that a missing neighbour (-1) reads it too.
+    first = np.append(np.where(child >= 0, child * 8, _NONE).astype(np.int32), _NONE)
+    parent_neigh = np.take(neighbors, np.flatnonzero(child >= 0), axis=0)     # (K, 27)
+    base = np.take(first, parent_neigh)                                        # (K, 27)
+    out = np.take(base, _PARENT_COL, axis=1)                                    # (K, 216)
+    out += _SLOT32
+    np.maximum(out, -1, out=out)
+    return out.reshape(-1, 27)
+
+
 def build_neighbors(octree: Octree) -> None:
     """Fill ``neighbors`` (N, 27) int32 of every level in place; -1 marks a missing neighbour."""
     levels = octree.levels
-    root = np.full((len(levels[0]), 27), -1, dtype=np.int32)
-    root[:, CENTER] = np.arange(len(levels[0]), dtype=np.int32)
-    levels[0].neighbors = root
-    slot = _SLOT.astype(np.int32)
+    levels[0].neighbors = root_neighbors(len(levels[0]))
     for lv in range(1, len(levels)):
-        up = levels[lv - 1]
-        # First child of every node (8k), a large negative sentinel for nodes without children,
-        # and one more sentinel at index -1 so that a missing neighbour (-1) reads it too.
-        first = np.append(np.where(up.child >= 0, up.child * 8, _NONE).astype(np.int32), _NONE)
-        parent_neigh = np.take(up.neighbors, np.flatnonzero(up.child >= 0), axis=0)   # (K, 27)
-        base = np.take(first, parent_neigh)                                           # (K, 27)
-        out = np.take(base, _PARENT_COL, axis=1)                                       # (K, 216)
-        out += slot
-        np.maximum(out, -1, out=out)
-        levels[lv].neighbors = out.reshape(-1, 27)
+        levels[lv].neighbors = child_neighbors(levels[lv - 1].neighbors, levels[lv - 1].child)
 
 
 _NONE = np.int32(-(1 << 30))
+_SLOT32 = _SLOT.astype(np.int32)

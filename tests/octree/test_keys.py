@@ -33,3 +33,11 @@ def test_depth_10_coordinates_fit_and_out_of_range_is_rejected():
     assert np.array_equal(keys.decode(keys.encode(top))[0], top)
     with pytest.raises(ValueError):
         keys.encode(np.array([[1 << 16, 0, 0]]))
+
+
+def test_child_keys_keep_the_batch_bits():
+    k = keys.encode(np.array([[1, 2, 3], [1, 2, 3]]), np.array([0, 5]))
+    ck = keys.child_keys(k)
+    assert np.array_equal(keys.batch_of(ck), np.repeat([0, 5], 8))
+    assert np.array_equal(keys.parent_keys(ck), np.repeat(k, 8))
+    assert np.array_equal(keys.decode(ck[8:])[0], keys.decode(ck[:8])[0])
