@@ -54,3 +54,36 @@ def merge_octrees(octrees: list[Octree]) -> Octree:
                   threshold=first.threshold, full_depth=first.full_depth,
                   adaptive_depth=first.adaptive_depth,
                   normalizations=[n for o in octrees for n in o.normalizations])
+
+
+def split_octree(octree: Octree) -> list[Octree]:
+    """The inverse of :func:`merge_octrees`: one octree per batch item (keys without batch bits).
+
+    Nodes are shape-major at every depth, so each shape is a slice; child and parent indices are
+    renumbered, and neighbour tables rebuilt when the batch had them.
+    """
+    from .neighbors import build_neighbors
+    from .octree import SPLIT
+
+    out = []
+    bounds = [np.searchsorted(lv.key >> np.uint64(morton.BATCH_SHIFT),
+                              np.arange(octree.batch_size + 1, dtype=np.uint64)) for lv in octree.levels]
+    for b in range(octree.batch_size):
+        levels, parent = [], np.full(1, -1, dtype=np.int32)
+        for lv, bd in zip(octree.levels, bounds):
+            sl = slice(int(bd[b]), int(bd[b + 1]))
+            label = lv.label[sl]
+            split = np.flatnonzero(label == SPLIT)
+            child = np.full(len(label), -1, dtype=np.int32)
+            child[split] = np.arange(len(split), dtype=np.int32)
+            levels.append(OctreeLevel(depth=lv.depth, key=lv.key[sl] & _MORTON_MASK, label=label,
+                                      child=child, parent=parent[:len(label)], plane=lv.plane[sl],
+                                      error=lv.error[sl], npoints=lv.npoints[sl]))
+            parent = np.repeat(split.astype(np.int32), 8)
+        single = Octree(depth=octree.depth, levels=levels, adaptive=octree.adaptive,
+                        threshold=octree.threshold, full_depth=octree.full_depth,
+                        adaptive_depth=octree.adaptive_depth, normalizations=[octree.normalizations[b]])
+        if octree.has_neighbors:
+            build_neighbors(single)
+        out.append(single)
+    return out

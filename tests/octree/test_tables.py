@@ -76,3 +76,15 @@ def test_octree_round_trips_through_flat_arrays(tmp_path):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
         assert np.array_equal(a.error, b.error, equal_nan=True)
     assert np.allclose(back.normalizations[1].scale, 2 * o.normalizations[0].scale)
+
+
+def test_split_octree_inverts_merge():
+    from model.octree.batch import split_octree
+
+    singles = [build_octree(sphere_points(8000, seed=s), 5, adaptive=bool(s % 2)) for s in range(3)]
+    back = split_octree(merge_octrees(singles))
+    assert len(back) == 3
+    for a, b in zip(singles, back):
+        for la, lb in zip(a.levels, b.levels):
+            for name in ("key", "label", "child", "parent", "plane", "npoints", "neighbors"):
+                assert np.array_equal(getattr(la, name), getattr(lb, name)), name
