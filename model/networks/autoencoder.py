@@ -1,0 +1,62 @@
+"""The autoencoders of paper section 5.2 as configurations of one encoder and one decoder.
+
+``aocnn``: Adaptive O-CNN encoder and decoder on adaptive octrees.  ``ocnn-binary``,
+``ocnn-patch``, ``ocnn-patch-star``: O-CNN encoder (signal at the finest depth) and the decoder
+in the matching mode on full octrees (the ablation study).  ``psg``: the Adaptive O-CNN encoder
+with a point-set decoder, trained with the Chamfer distance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from ..nn.tensors import OctreeTensors
+from .decoder import OctreeDecoder
+from .encoder import OctreeEncoder, default_channels
+from .psg import PointSetDecoder, chamfer_loss
+
+
+@dataclass(frozen=True)
+class Arch:
+    """What an architecture reads and how it decodes."""
+
+    octree: str          # 'adaptive' or 'full': the record's octree used as input and target
+    signal: str          # encoder signal: 'all' depths or the 'finest' only
+    decoder: str         # OctreeDecoder mode, or 'psg'
+
+
+ARCHS: dict[str, Arch] = {
+    "aocnn": Arch("adaptive", "all", "adaptive"),
+    "ocnn-binary": Arch("full", "finest", "binary"),
+    "ocnn-patch": Arch("full", "finest", "patch"),
+    "ocnn-patch-star": Arch("full", "finest", "patch_star"),
+    "psg": Arch("adaptive", "all", "psg"),
+}
+
+
+class Autoencoder(nn.Module):
+    """Encoder + decoder of one architecture of :data:`ARCHS`, with its training loss."""
+
+    def __init__(self, arch: str, depth: int, latent: int = 128, base_channels: int = 8,
+                 top_channels: int = 64, psg_points: int = 2048):
+        super().__init__()
+        if arch not in ARCHS:
+            raise ValueError(f"unknown arch {arch!r}; choose from {', '.join(ARCHS)}")
+        self.arch_name, self.arch, self.depth = arch, ARCHS[arch], depth
+        ch = default_channels(depth, base_channels, top_channels)
+        self.encoder = OctreeEncoder(depth, ch, latent, signal=self.arch.signal)
+        self.decoder: nn.Module = (PointSetDecoder(latent, psg_points) if self.arch.decoder == "psg"
+                                   else OctreeDecoder(depth, ch, latent, mode=self.arch.decoder))
+
+    def forward(self, octree: OctreeTensors, points: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """Losses on a batch: the octree (input and target) and, for psg, target points (B, M, 3)."""
+        latent = self.encoder(octree)
+        if self.arch.decoder == "psg":
+            if points is None:
+                raise ValueError("the psg decoder needs target points")
+            loss = chamfer_loss(self.decoder(latent), points)
+            return {"chamfer": loss, "total": loss}
+        return self.decoder.loss(self.decoder(latent, octree), octree)

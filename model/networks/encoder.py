@@ -1,0 +1,54 @@
+"""Octree encoders: Adaptive O-CNN (plane signal at every depth, fused by max) and O-CNN.
+
+Paper section 4.1: per depth a conv block, features pooled to the parent depth and fused with
+that depth's own branch (the 4-channel plane signal (n, d*) through a conv) by element-wise max,
+down to the full depth 2, then fully connected layers to the latent code.  O-CNN's encoder is
+the same network reading the signal at the finest depth only.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from ..nn.ops import ConvBnRelu, octree_max_pool
+from ..nn.tensors import OctreeTensors
+
+SIGNAL_CHANNELS = 4
+
+
+def default_channels(depth: int, base: int = 8, top: int = 64, full_depth: int = 2) -> dict[int, int]:
+    """Channels per depth: ``base`` at the max depth, doubling towards the root, capped at ``top``."""
+    return {d: min(top, base << (depth - d)) for d in range(full_depth, depth + 1)}
+
+
+class OctreeEncoder(nn.Module):
+    """Octree (B shapes) -> latent codes (B, latent).  ``signal='all'`` is Adaptive O-CNN's
+    encoder, ``signal='finest'`` O-CNN's."""
+
+    def __init__(self, depth: int, channels: dict[int, int] | None = None, latent: int = 128,
+                 signal: str = "all", full_depth: int = 2):
+        super().__init__()
+        if signal not in ("all", "finest"):
+            raise ValueError("signal must be 'all' or 'finest'")
+        self.depth, self.full_depth, self.signal = depth, full_depth, signal
+        self.channels = channels or default_channels(depth, full_depth=full_depth)
+        ch = self.channels
+        branch_depths = range(full_depth, depth + 1) if signal == "all" else [depth]
+        self.branch = nn.ModuleDict({str(d): ConvBnRelu(SIGNAL_CHANNELS, ch[d]) for d in branch_depths})
+        self.down = nn.ModuleDict({str(d): ConvBnRelu(ch[d], ch[d - 1]) for d in range(depth, full_depth, -1)})
+        width = 64 * ch[full_depth]
+        self.head = nn.Sequential(nn.Linear(width, 256), nn.BatchNorm1d(256), nn.ReLU(inplace=True),
+                                  nn.Linear(256, latent), nn.Tanh())
+
+    def forward(self, octree: OctreeTensors) -> torch.Tensor:
+        lv = octree.levels
+        d = self.depth
+        x = self.branch[str(d)](lv[d].plane, lv[d].neighbors)
+        for d in range(self.depth, self.full_depth, -1):
+            x = self.down[str(d)](x, lv[d].neighbors)
+            x = octree_max_pool(x, lv[d - 1].split, lv[d - 1].neighbors.shape[0])
+            if self.signal == "all":
+                x = torch.maximum(x, self.branch[str(d - 1)](lv[d - 1].plane, lv[d - 1].neighbors))
+        # Depth 2 is full: 64 octants per shape, shape-major in key order.
+        return self.head(x.reshape(octree.batch_size, -1))

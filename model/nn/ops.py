@@ -1,0 +1,193 @@
+"""Octree CNN operations on per-depth feature tables (N, C), for the networks of paper section 4.
+
+Data moves only through index_select, reshape/view/expand, cat and scatter_reduce, arithmetic is
+matmul and element-wise: autograd derives every backward pass (no custom autograd functions) and
+a captured graph (jit trace, torch.export, ONNX) has no loop over nodes and no branch on data.  Features of a depth are
+rows in node order; neighbour and split tables come from :class:`model.nn.tensors.LevelTensors`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+KERNEL = 27
+"""Neighbours of a 3x3x3 kernel: column (dx+1)*9 + (dy+1)*3 + (dz+1), 13 is the node itself."""
+CHILDREN = 8
+"""Children of a split node: slot 4x + 2y + z."""
+CHUNK_BYTES = 16 << 20
+"""Eager convolution gathers at most this many bytes of neighbour rows per GEMM (see octree_conv)."""
+
+
+def graph_capture() -> bool:
+    """True while a graph is being recorded (jit trace, torch.compile / torch.export, ONNX export).
+
+    Ops then take their single, size-independent formulation so the graph works for any N.
+    """
+    return torch.jit.is_tracing() or torch.compiler.is_compiling() or torch.onnx.is_in_onnx_export()
+
+
+def _check(ok: bool, message: str) -> None:
+    if not ok:
+        raise ValueError(message)
+
+
+def octree_conv(x: torch.Tensor, neighbors: torch.Tensor, weight: torch.Tensor,
+                bias: torch.Tensor | None = None, *, chunk_rows: int | None = None) -> torch.Tensor:
+    """3x3x3 convolution, stride 1, over the N octants of one depth: (N, Cin) -> (N, Cout).
+
+    ``neighbors`` (N, 27) int64 with -1 for a missing neighbour, which reads zeros; ``weight`` is
+    (27, Cin, Cout) or (27*Cin, Cout) in the neighbour column order.  The neighbour rows are
+    gathered into an (n, 27*Cin) matrix and multiplied by the weight in one GEMM; autograd's
+    backward is a GEMM, a scatter-add of the gathered rows and one GEMM for the weight.
+
+    While a graph is captured all N rows form one gather + GEMM.  Eagerly the rows are split into
+    chunks of ``chunk_rows`` (default: :data:`CHUNK_BYTES` of gathered features): one gather of a
+    large N allocates 27*N*Cin floats afresh, and on CPU page-faulting that memory cost more than
+    the GEMM itself (bench/conv.py); chunks stay small enough for the allocator to reuse.
+    """
+    cin = x.shape[1]
+    capture = graph_capture()
+    if not capture:
+        _check(neighbors.dim() == 2 and neighbors.shape[1] == KERNEL
+               and neighbors.shape[0] == x.shape[0], "neighbors must be (N, 27) for x of N rows")
+        _check(tuple(weight.shape[:2]) == (KERNEL, cin) if weight.dim() == 3
+               else weight.dim() == 2 and weight.shape[0] == KERNEL * cin,
+               f"weight must be (27, {cin}, Cout) or ({KERNEL * cin}, Cout), got {tuple(weight.shape)}")
+        if chunk_rows is None:
+            chunk_rows = max(1, CHUNK_BYTES // (KERNEL * cin * x.element_size()))
+    w = weight.reshape(KERNEL * cin, weight.shape[-1])
+    # Row 0 is a zero row, so neighbour j is row j+1 and a missing one (-1) reads row 0.
+    padded = torch.cat([x.new_zeros(1, cin), x])
+    index = neighbors + 1
+    if capture or index.shape[0] <= chunk_rows:
+        out = padded.index_select(0, index.reshape(-1)).view(index.shape[0], KERNEL * cin).mm(w)
+    else:
+        index = index.contiguous()
+        out = torch.cat([padded.index_select(0, index[a:a + chunk_rows].reshape(-1))
+                         .view(-1, KERNEL * cin).mm(w) for a in range(0, index.shape[0], chunk_rows)])
+    return out if bias is None else out + bias
+
+
+def octree_max_pool(x_children: torch.Tensor, split: torch.Tensor, n_parent: int) -> torch.Tensor:
+    """Max-pooling (kernel 2, stride 2) to the parent depth: (8K, C) children of the K split nodes
+    -> (n_parent, C); rows of nodes without children are 0.
+
+    Children rows 8k..8k+7 are max-reduced into row ``split[k]`` of a -inf table; rows left at
+    -inf (no children) become 0.  Features reaching the pool come out of a ReLU, so they are >= 0
+    and 0 is the neutral value for the encoder's element-wise max fusion with the parent depth.
+    Tied maxima share the gradient equally (F.max_pool3d gives it to one of them).
+    """
+    c = x_children.shape[1]
+    if not graph_capture():
+        _check(x_children.shape[0] == CHILDREN * split.shape[0],
+               f"x_children has {x_children.shape[0]} rows, expected 8 * {split.shape[0]}")
+    index = split.unsqueeze(1).expand(-1, CHILDREN).reshape(-1, 1).expand(-1, c)
+    out = x_children.new_full((n_parent, c), -math.inf)
+    out = out.scatter_reduce(0, index, x_children, reduce="amax", include_self=True)
+    return torch.where(out == -math.inf, torch.zeros_like(out), out)
+
+
+def octree_deconv(x: torch.Tensor, split: torch.Tensor, weight: torch.Tensor,
+                  bias: torch.Tensor | None = None) -> torch.Tensor:
+    """Deconvolution (kernel 2, stride 2) to the children: (N, Cin) -> (8K, Cout).
+
+    ``weight`` (8, Cin, Cout) by child slot; row 8k+s of the output is child slot s of the k-th
+    split node ``split[k]``, i.e. node 8k+s of the next depth.  One gather and one GEMM.
+    """
+    cin, cout = x.shape[1], weight.shape[-1]
+    if not graph_capture():
+        _check(tuple(weight.shape) == (CHILDREN, cin, cout),
+               f"weight must be (8, {cin}, Cout), got {tuple(weight.shape)}")
+    w = weight.permute(1, 0, 2).reshape(cin, CHILDREN * cout)
+    out = x.index_select(0, split).mm(w).reshape(-1, cout)
+    return out if bias is None else out + bias
+
+
+def octree_upsample(x: torch.Tensor, split: torch.Tensor) -> torch.Tensor:
+    """Nearest up-sampling: (N, C) -> (8K, C), each split node's row copied to its 8 children."""
+    return x.index_select(0, split.unsqueeze(1).expand(-1, CHILDREN).reshape(-1))
+
+
+def _uniform_(tensor: torch.Tensor, fan_in: int) -> None:
+    """U(-1/sqrt(fan_in), 1/sqrt(fan_in)): what nn.Conv3d's kaiming_uniform_(a=sqrt(5)) gives."""
+    bound = 1.0 / math.sqrt(fan_in) if fan_in > 0 else 0.0
+    nn.init.uniform_(tensor, -bound, bound)
+
+
+class OctreeConv(nn.Module):
+    """3x3x3 octree convolution, stride 1 (:func:`octree_conv`); weight (27, Cin, Cout)."""
+
+    def __init__(self, cin: int, cout: int, bias: bool = False):
+        super().__init__()
+        self.cin, self.cout = cin, cout
+        self.weight = nn.Parameter(torch.empty(KERNEL, cin, cout))
+        self.bias = nn.Parameter(torch.empty(cout)) if bias else None
+        self.reset_parameters()
+
+    def reset_parameters(self) -> None:
+        """As nn.Conv3d(cin, cout, 3): fan_in = 27 * cin for weight and bias."""
+        _uniform_(self.weight, KERNEL * self.cin)
+        if self.bias is not None:
+            _uniform_(self.bias, KERNEL * self.cin)
+
+    def forward(self, x: torch.Tensor, neighbors: torch.Tensor) -> torch.Tensor:
+        return octree_conv(x, neighbors, self.weight, self.bias)
+
+    def extra_repr(self) -> str:
+        return f"{self.cin}, {self.cout}, bias={self.bias is not None}"
+
+
+class OctreeDeconv(nn.Module):
+    """Octree deconvolution, kernel 2, stride 2, to the children (:func:`octree_deconv`)."""
+
+    def __init__(self, cin: int, cout: int, bias: bool = False):
+        super().__init__()
+        self.cin, self.cout = cin, cout
+        self.weight = nn.Parameter(torch.empty(CHILDREN, cin, cout))
+        self.bias = nn.Parameter(torch.empty(cout)) if bias else None
+        self.reset_parameters()
+
+    def reset_parameters(self) -> None:
+        """As nn.ConvTranspose3d(cin, cout, 2, 2), whose init takes fan_in = 8 * cout."""
+        _uniform_(self.weight, CHILDREN * self.cout)
+        if self.bias is not None:
+            _uniform_(self.bias, CHILDREN * self.cout)
+
+    def forward(self, x: torch.Tensor, split: torch.Tensor) -> torch.Tensor:
+        return octree_deconv(x, split, self.weight, self.bias)
+
+    def extra_repr(self) -> str:
+        return f"{self.cin}, {self.cout}, bias={self.bias is not None}"
+
+
+class OctreeBatchNorm(nn.BatchNorm1d):
+    """Batch normalisation of (N, C) octree features: statistics over all N octants of a depth."""
+
+
+class ConvBnRelu(nn.Module):
+    """OctreeConv + OctreeBatchNorm + ReLU, the conv(c) block of the paper's appendix."""
+
+    def __init__(self, cin: int, cout: int):
+        super().__init__()
+        self.conv = OctreeConv(cin, cout)
+        self.bn = OctreeBatchNorm(cout)
+        self.relu = nn.ReLU(inplace=True)
+
+    def forward(self, x: torch.Tensor, neighbors: torch.Tensor) -> torch.Tensor:
+        return self.relu(self.bn(self.conv(x, neighbors)))
+
+
+class DeconvBnRelu(nn.Module):
+    """OctreeDeconv + OctreeBatchNorm + ReLU: features of split octants handed to their children."""
+
+    def __init__(self, cin: int, cout: int):
+        super().__init__()
+        self.deconv = OctreeDeconv(cin, cout)
+        self.bn = OctreeBatchNorm(cout)
+        self.relu = nn.ReLU(inplace=True)
+
+    def forward(self, x: torch.Tensor, split: torch.Tensor) -> torch.Tensor:
+        return self.relu(self.bn(self.deconv(x, split)))

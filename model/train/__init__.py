@@ -1,0 +1,1 @@
+"""Training of the Adaptive O-CNN networks (torch only at training time)."""

@@ -1,0 +1,62 @@
+"""Training batches from a built dataset: records' octrees merged per batch, plus target points."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..data.dataset import load_record
+from ..octree import Octree
+from ..octree.batch import merge_octrees
+from ..octree.serialize import octree_from_arrays
+
+
+@dataclass
+class Sample:
+    """One shape: its octree (input and target) and target points in unit-cube coordinates."""
+
+    category: str
+    shape_id: str
+    octree: Octree
+    points: np.ndarray
+
+
+class RecordSet:
+    """The records of one split of a dataset, held in memory (octree arrays and a point subset)."""
+
+    def __init__(self, data_dir: str | Path, split: str, octree: str = "adaptive",
+                 points: int = 2048, depth: int | None = None, limit: int | None = None, seed: int = 0):
+        data_dir = Path(data_dir)
+        manifest_path = data_dir / "manifest.json"
+        if not manifest_path.is_file():
+            raise FileNotFoundError(f"{manifest_path} not found: build the dataset with python -m model.data build")
+        manifest = json.loads(manifest_path.read_text())
+        if depth is not None and manifest["config"]["depth"] != depth:
+            raise ValueError(f"the dataset was built at depth {manifest['config']['depth']}, not {depth}")
+        rows = [r for r in manifest["records"] if r["split"] == split][:limit]
+        if not rows:
+            raise ValueError(f"no records of split {split!r} in {data_dir}")
+        rng = np.random.default_rng(seed)
+        self.samples: list[Sample] = []
+        for r in rows:
+            rec = load_record(data_dir / r["path"])
+            tree = octree_from_arrays(rec.arrays, prefix=f"{octree}_", neighbors=False)
+            cube = tree.normalizations[0].to_cube(rec["points"])
+            pick = rng.choice(len(cube), size=points, replace=len(cube) < points)
+            self.samples.append(Sample(r["category"], r["shape_id"], tree, cube[pick].astype(np.float32)))
+        self.depth = self.samples[0].octree.depth
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+    def batch(self, indices) -> tuple[Octree, np.ndarray]:
+        """The merged octree (with neighbour tables) and stacked points (B, P, 3) of ``indices``."""
+        from ..octree.neighbors import build_neighbors
+
+        chosen = [self.samples[i] for i in indices]
+        merged = merge_octrees([s.octree for s in chosen])
+        build_neighbors(merged)
+        return merged, np.stack([s.points for s in chosen])

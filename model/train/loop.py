@@ -1,0 +1,195 @@
+"""The training loop: seeds, batches, (distributed) optimisation, validation, checkpoints."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import distributed as dist
+
+from ..networks import ARCHS, Autoencoder
+from ..nn.tensors import OctreeTensors
+from .data import RecordSet
+
+
+@dataclass
+class TrainConfig:
+    """Everything a run depends on; saved to RUN/config.json and checked on resume."""
+
+    data: str
+    depth: int
+    arch: str
+    out: str
+    iters: int = 2000
+    epochs: float | None = None
+    batch_size: int = 8
+    optimizer: str = "adam"
+    lr: float | None = None
+    weight_decay: float = 0.0
+    val_every: int = 200
+    ckpt_every: int = 100
+    latent: int = 128
+    channels: int = 8
+    seed: int = 0
+    limit: int | None = None
+    progress: bool = True
+
+
+def build_model(cfg: TrainConfig) -> Autoencoder:
+    return Autoencoder(cfg.arch, cfg.depth, latent=cfg.latent, base_channels=cfg.channels)
+
+
+def save_atomic(obj, path: Path) -> None:
+    """torch.save to a temporary file beside ``path``, then rename."""
+    # torch's zip writer names the archive after the file: no leading dot, keep the suffix.
+    fd, tmp = tempfile.mkstemp(prefix="tmp-", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        torch.save(obj, tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+class Trainer:
+    """One training run (one process of a distributed run when WORLD_SIZE > 1)."""
+
+    def __init__(self, cfg: TrainConfig):
+        if cfg.arch not in ARCHS:
+            raise ValueError(f"unknown arch {cfg.arch!r}")
+        self.cfg = cfg
+        self.world = int(os.environ.get("WORLD_SIZE", "1"))
+        self.rank = int(os.environ.get("RANK", "0"))
+        if self.world > 1 and not dist.is_initialized():
+            dist.init_process_group("gloo")
+        if cfg.batch_size % self.world:
+            raise ValueError(f"--batch-size {cfg.batch_size} must be a multiple of the {self.world} processes")
+        kind = ARCHS[cfg.arch].octree
+        self.train_set = RecordSet(cfg.data, "train", kind, depth=cfg.depth, limit=cfg.limit, seed=cfg.seed)
+        try:
+            self.val_set = RecordSet(cfg.data, "val", kind, depth=cfg.depth, limit=cfg.limit, seed=cfg.seed + 1)
+        except ValueError:
+            self.val_set = None
+        if cfg.epochs is not None:
+            cfg.iters = max(1, math.ceil(cfg.epochs * len(self.train_set) / cfg.batch_size))
+        torch.manual_seed(cfg.seed)
+        self.model = build_model(cfg)
+        self.net = self.model
+        if self.world > 1:
+            self.net = torch.nn.parallel.DistributedDataParallel(self.model)
+        lr = cfg.lr if cfg.lr is not None else (1e-3 if cfg.optimizer == "adam" else 0.1)
+        self.opt = (torch.optim.Adam(self.model.parameters(), lr=lr, weight_decay=cfg.weight_decay)
+                    if cfg.optimizer == "adam" else
+                    torch.optim.SGD(self.model.parameters(), lr=lr, momentum=0.9, weight_decay=cfg.weight_decay))
+        # Paper schedule shape: divide the rate by 10 at 2/7, 4/7 and 5/7 of the run.
+        marks = [int(cfg.iters * f) for f in (2 / 7, 4 / 7, 5 / 7)]
+        self.sched = torch.optim.lr_scheduler.MultiStepLR(self.opt, milestones=marks, gamma=0.1)
+        self.step = 0
+        self.out = Path(cfg.out)
+        if self.rank == 0:
+            self.out.mkdir(parents=True, exist_ok=True)
+        self._resume()
+
+    # -- checkpoints ----------------------------------------------------------------------------
+    @property
+    def ckpt_path(self) -> Path:
+        return self.out / "checkpoint.pt"
+
+    def _resume(self) -> None:
+        if not self.ckpt_path.is_file():
+            if self.rank == 0:
+                (self.out / "config.json").write_text(json.dumps(asdict(self.cfg), indent=1) + "\n")
+            return
+        state = torch.load(self.ckpt_path, map_location="cpu", weights_only=False)
+        saved = state["config"]
+        for key in ("arch", "depth", "latent", "channels", "batch_size", "seed"):
+            if saved[key] != getattr(self.cfg, key):
+                raise ValueError(f"{self.ckpt_path} was trained with {key}={saved[key]!r}, not "
+                                 f"{getattr(self.cfg, key)!r}; use another --out")
+        self.model.load_state_dict(state["model"])
+        self.opt.load_state_dict(state["optimizer"])
+        self.sched.load_state_dict(state["scheduler"])
+        self.step = state["step"]
+        torch.set_rng_state(state["torch_rng"])
+
+    def save(self) -> None:
+        if self.rank != 0:
+            return
+        save_atomic({"model": self.model.state_dict(), "optimizer": self.opt.state_dict(),
+                     "scheduler": self.sched.state_dict(), "step": self.step,
+                     "torch_rng": torch.get_rng_state(), "config": asdict(self.cfg)}, self.ckpt_path)
+
+    # -- batches ----------------------------------------------------------------------------------
+    def batch_indices(self, step: int) -> np.ndarray:
+        """This process's shapes of global step ``step``: a pure function of (seed, step), so a
+        resumed run sees exactly the batches it would have seen."""
+        n = len(self.train_set)
+        per_epoch = max(1, n // self.cfg.batch_size)
+        epoch, k = divmod(step, per_epoch)
+        order = np.random.default_rng([self.cfg.seed, epoch]).permutation(n)
+        if n < self.cfg.batch_size:
+            order = np.resize(order, self.cfg.batch_size)
+        chosen = order[k * self.cfg.batch_size:(k + 1) * self.cfg.batch_size]
+        return chosen[self.rank::self.world]
+
+    def losses(self, dataset: RecordSet, indices) -> dict[str, torch.Tensor]:
+        octree, points = dataset.batch(indices)
+        return self.net(OctreeTensors.from_octree(octree), torch.from_numpy(points))
+
+    # -- the loop ---------------------------------------------------------------------------------
+    def train_step(self) -> dict[str, float]:
+        self.model.train()
+        loss = self.losses(self.train_set, self.batch_indices(self.step))
+        self.opt.zero_grad(set_to_none=True)
+        loss["total"].backward()
+        self.opt.step()
+        self.sched.step()
+        self.step += 1
+        return {k: float(v.detach()) for k, v in loss.items()}
+
+    @torch.no_grad()
+    def validate(self) -> dict[str, float]:
+        """Mean losses over the validation split (teacher forcing, batch statistics frozen)."""
+        self.model.eval()
+        sums: dict[str, float] = {}
+        n = len(self.val_set)
+        for s in range(0, n, self.cfg.batch_size):
+            idx = np.arange(s, min(n, s + self.cfg.batch_size))
+            octree, points = self.val_set.batch(idx)
+            out = self.model(OctreeTensors.from_octree(octree), torch.from_numpy(points))
+            for k, v in out.items():
+                sums[k] = sums.get(k, 0.0) + float(v) * len(idx)
+        return {k: v / n for k, v in sums.items()}
+
+    def log(self, row: dict) -> None:
+        if self.rank == 0:
+            with open(self.out / "metrics.jsonl", "a") as fh:
+                fh.write(json.dumps(row) + "\n")
+
+    def run(self) -> None:
+        from tqdm import tqdm
+
+        bar = tqdm(total=self.cfg.iters, initial=self.step, desc=self.cfg.arch, unit="step",
+                   disable=not self.cfg.progress or self.rank != 0)
+        t0 = time.time()
+        while self.step < self.cfg.iters:
+            losses = self.train_step()
+            bar.update()
+            bar.set_postfix(loss=f"{losses['total']:.4f}")
+            if self.step % 10 == 0 or self.step == self.cfg.iters:
+                self.log({"step": self.step, "split": "train", "lr": self.sched.get_last_lr()[0],
+                          "seconds": time.time() - t0, **losses})
+            if self.val_set is not None and (self.step % self.cfg.val_every == 0 or self.step == self.cfg.iters):
+                self.log({"step": self.step, "split": "val", **self.validate()})
+            if self.step % self.cfg.ckpt_every == 0 or self.step == self.cfg.iters:
+                self.save()
+        bar.close()

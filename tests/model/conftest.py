@@ -1,0 +1,15 @@
+"""A tiny procedural dataset shared by the network and training tests."""
+
+import pytest
+
+from model.data.dataset import BuildConfig, build_dataset, procedural_tasks
+
+TINY = BuildConfig(depth=5, views=1, render_size=16, partial_scans=0, scan_resolution=64)
+
+
+@pytest.fixture(scope="session")
+def tiny_data(tmp_path_factory):
+    out = tmp_path_factory.mktemp("tiny_data")
+    tasks = procedural_tasks(6, categories=("chair", "table", "airplane"))
+    build_dataset(out, tasks, TINY, workers=1, progress=False)
+    return out
