@@ -26,7 +26,16 @@ class PointSetDecoder(nn.Module):
 def chamfer_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """The paper's Chamfer distance (mean squared nearest distance both ways), batch mean.
 
-    ``pred`` (B, N, 3), ``target`` (B, M, 3).
+    ``pred`` (B, N, 3), ``target`` (B, M, 3).  Nearest neighbours are found without gradient
+    (the assignment is piecewise constant) and only the matched pairs are differentiated: the
+    same value and gradient as differentiating the min over all pairs, without a (B, N, M)
+    backward pass.
     """
-    d = torch.cdist(pred, target).pow(2)
-    return (d.min(dim=2).values.mean(dim=1) + d.min(dim=1).values.mean(dim=1)).mean()
+    with torch.no_grad():
+        d = torch.cdist(pred, target)
+        to_target, to_pred = d.argmin(dim=2), d.argmin(dim=1)
+    near_t = target.gather(1, to_target.unsqueeze(-1).expand(-1, -1, 3))
+    near_p = pred.gather(1, to_pred.unsqueeze(-1).expand(-1, -1, 3))
+    forward = ((pred - near_t) ** 2).sum(-1).mean(1)
+    backward = ((target - near_p) ** 2).sum(-1).mean(1)
+    return (forward + backward).mean()

@@ -56,3 +56,17 @@ def test_adaptive_decoder_overfits_two_shapes_and_decodes_their_structure(tiny_d
         wl = w.label[np.searchsorted(w.key, common)]
         assert np.mean(gl == wl) > 0.9
         assert sum(got.leaves_per_depth()) > 0.5 * sum(want.leaves_per_depth())
+
+
+def test_chamfer_loss_matches_the_dense_formula_in_value_and_gradient():
+    from model.networks import chamfer_loss
+
+    torch.manual_seed(1)
+    pred = torch.rand(2, 50, 3, dtype=torch.float64, requires_grad=True)
+    target = torch.rand(2, 70, 3, dtype=torch.float64)
+    d = torch.cdist(pred, target).pow(2)
+    dense = (d.min(2).values.mean(1) + d.min(1).values.mean(1)).mean()
+    g_dense, = torch.autograd.grad(dense, pred)
+    fast = chamfer_loss(pred, target)
+    g_fast, = torch.autograd.grad(fast, pred)
+    assert torch.allclose(fast, dense) and torch.allclose(g_fast, g_dense)
