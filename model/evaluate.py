@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from .decode import decode
+from .files import write_atomic
 from .networks import ARCHS, TorchSteps
 from .nn.tensors import OctreeTensors
 from .octree import LEAF
@@ -112,7 +113,6 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    from .octree.__main__ import write_atomic
     write_atomic(args.out, (json.dumps(results, indent=1) + "\n").encode())
     print(f"{args.out}: {results['shapes']} shapes, Chamfer x1e3 category mean "
           f"{results['chamfer_x1e3_category_mean']:.3f}")

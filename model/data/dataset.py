@@ -11,14 +11,13 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
-import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
+from ..files import TEMP_PREFIX, write_atomic
 from ..octree import build_octree
 from ..octree.serialize import octree_from_arrays, octree_to_arrays
 from .layouts import iter_modelnet40, iter_r2n2, iter_shapenet, load_mesh
@@ -164,23 +163,9 @@ def write_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> str:
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     data = buf.getvalue()
-    _write_atomic(path, data)
-    return hashlib.sha256(data).hexdigest()
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_atomic(path, data, fsync=True)
+    return hashlib.sha256(data).hexdigest()
 
 
 @dataclass
@@ -233,7 +218,7 @@ def build_dataset(out: str | Path, tasks: list[ShapeTask], cfg: BuildConfig, wor
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    for tmp in out.rglob(".tmp-*"):          # leftovers of a killed build
+    for tmp in out.rglob(TEMP_PREFIX + "*"):  # leftovers of a killed build
         tmp.unlink()
     done, todo = [], []
     for t in tasks:
@@ -261,7 +246,7 @@ def build_dataset(out: str | Path, tasks: list[ShapeTask], cfg: BuildConfig, wor
         "splits": {sp: sum(1 for s in done if s.split == sp) for sp in ("train", "val", "test")},
         "records": [asdict(s) for s in done],
     }
-    _write_atomic(out / "manifest.json", (json.dumps(manifest, indent=1) + "\n").encode())
+    write_atomic(out / "manifest.json", (json.dumps(manifest, indent=1) + "\n").encode())
     return manifest
 
 

@@ -10,11 +10,11 @@ import argparse
 import json
 import os
 import sys
-import tempfile
 import time
 
 import numpy as np
 
+from ..files import write_atomic
 from .build import DEFAULT_THRESHOLD, MAX_BUILD_DEPTH, build_octree
 from .errors import OctreeInputError
 from .inputs import load_input
@@ -64,20 +64,6 @@ def octree_stats(octree: Octree, seconds: float) -> dict:
         "max_patch_error_above_max_depth": float(above.max() * scale) if len(above) else 0.0,
         "seconds": seconds,
     }
-
-
-def write_atomic(path: str, data: bytes) -> None:
-    """Write ``data`` to a temporary file beside ``path``, then rename it over ``path``."""
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def run(args: argparse.Namespace) -> dict:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -14,6 +13,7 @@ import numpy as np
 import torch
 from torch import distributed as dist
 
+from ..files import atomic_path
 from ..networks import ARCHS, Autoencoder
 from ..nn.tensors import OctreeTensors
 from .data import RecordSet
@@ -44,20 +44,6 @@ class TrainConfig:
 
 def build_model(cfg: TrainConfig) -> Autoencoder:
     return Autoencoder(cfg.arch, cfg.depth, latent=cfg.latent, base_channels=cfg.channels)
-
-
-def save_atomic(obj, path: Path) -> None:
-    """torch.save to a temporary file beside ``path``, then rename."""
-    # torch's zip writer names the archive after the file: no leading dot, keep the suffix.
-    fd, tmp = tempfile.mkstemp(prefix="tmp-", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        torch.save(obj, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 class Trainer:
@@ -124,9 +110,10 @@ class Trainer:
     def save(self) -> None:
         if self.rank != 0:
             return
-        save_atomic({"model": self.model.state_dict(), "optimizer": self.opt.state_dict(),
-                     "scheduler": self.sched.state_dict(), "step": self.step,
-                     "torch_rng": torch.get_rng_state(), "config": asdict(self.cfg)}, self.ckpt_path)
+        with atomic_path(self.ckpt_path) as tmp:
+            torch.save({"model": self.model.state_dict(), "optimizer": self.opt.state_dict(),
+                        "scheduler": self.sched.state_dict(), "step": self.step,
+                        "torch_rng": torch.get_rng_state(), "config": asdict(self.cfg)}, tmp)
 
     # -- batches ----------------------------------------------------------------------------------
     def batch_indices(self, step: int) -> np.ndarray:
