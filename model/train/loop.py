@@ -175,7 +175,8 @@ class Trainer:
             if self.step % 10 == 0 or self.step == self.cfg.iters:
                 self.log({"step": self.step, "split": "train", "lr": self.sched.get_last_lr()[0],
                           "seconds": time.time() - t0, **losses})
-            if self.val_set is not None and (self.step % self.cfg.val_every == 0 or self.step == self.cfg.iters):
+            due = self.step % self.cfg.val_every == 0 or self.step == self.cfg.iters
+            if self.val_set is not None and due and self.rank == 0:   # one process validates
                 self.log({"step": self.step, "split": "val", **self.validate()})
             if self.step % self.cfg.ckpt_every == 0 or self.step == self.cfg.iters:
                 self.save()
