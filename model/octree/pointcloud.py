@@ -101,22 +101,25 @@ def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
     graph = sparse.coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
     graph = graph.maximum(graph.T)
     mst = csgraph.minimum_spanning_tree(graph)
-    mst = mst + mst.T
+    mst = (mst + mst.T).tocoo()
     ncomp, comp = csgraph.connected_components(mst, directed=False)
-    pred = np.arange(n)
-    for c in range(ncomp):
-        root = int(np.flatnonzero(comp == c)[0])
-        _, p = csgraph.breadth_first_order(mst, root, directed=False, return_predecessors=True)
-        members = p >= 0
-        pred[members] = p[members]
+    # One breadth-first search over all parts: a virtual node n links to one root per part.
+    roots = np.unique(comp, return_index=True)[1]
+    rows = np.r_[mst.row, np.full(len(roots), n), roots]
+    cols = np.r_[mst.col, roots, np.full(len(roots), n)]
+    joined = sparse.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n + 1, n + 1)).tocsr()
+    _, pred = csgraph.breadth_first_order(joined, n, directed=False, return_predecessors=True)
+    pred = pred[:n].copy()
+    pred[roots] = roots
     # Sign relative to the tree predecessor; _propagate turns it into an absolute sign.
     sign = np.where((normals * normals[pred]).sum(1) < 0, -1.0, 1.0)
     normals = normals * _propagate(sign, pred)[:, None]
-    for c in range(ncomp):
-        m = comp == c
-        out = ((points[m] - points[m].mean(0)) * normals[m]).sum(1)
-        if (out > 0).sum() < (out < 0).sum():
-            normals[m] *= -1.0
+    # Each part faces outward: most normals point away from its centroid.
+    count = np.bincount(comp, minlength=ncomp)
+    centroid = np.stack([np.bincount(comp, points[:, k], ncomp) for k in range(3)], 1) / count[:, None]
+    out = np.sign(((points - centroid[comp]) * normals).sum(1))
+    flip = np.bincount(comp, out, ncomp) < 0
+    normals[flip[comp]] *= -1.0
     return normals
 
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from model.decode import decode, full_levels
-from model.octree import EMPTY, LEAF, SPLIT, build_octree
+from model.octree import EMPTY, build_octree
 from model.octree.batch import merge_octrees
 from model.octree.keys import child_keys
 

@@ -7,7 +7,6 @@ import torch
 from model.decode import decode
 from model.networks import ARCHS, Autoencoder, TorchSteps
 from model.nn.tensors import OctreeTensors
-from model.octree import EMPTY, LEAF, SPLIT
 from model.octree.batch import split_octree
 from model.train.data import RecordSet
 

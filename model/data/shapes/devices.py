@@ -177,11 +177,11 @@ def loudspeaker(rng: np.random.Generator) -> Assembly:
         return a
     n_drv = {"tower": int(rng.integers(2, 5)), "bookshelf": int(rng.integers(1, 3)), "sub": 1,
              "pa": int(rng.integers(1, 3))}[kind]
-    y = h + feet - 0.06
     rad = [min(w, h / n_drv) * 0.18] + [min(w, h / n_drv) * u(0.3, 0.42)] * (n_drv - 1)
     if kind == "sub":
         rad = [min(w, h) * u(0.26, 0.36)]
     slots = [h / 2 + feet] if kind == "sub" else []
+    prev_y = prev_r = 0.0                      # the driver above; set by each iteration
     for i, rr in enumerate(rad):
         if not slots:
             y = h + feet - rr - 0.03
