@@ -31,15 +31,12 @@ from .octree.metrics import chamfer_distance, sample_patches
 from .octree.patches import patches_to_mesh
 from .octree.batch import split_octree
 from .train.data import RecordSet
-from .train.loop import TrainConfig, build_model
+from .train.loop import TrainConfig, build_model, load_checkpoint
 
 
 def load_run(run: str | Path) -> tuple[torch.nn.Module, TrainConfig]:
     """The trained model (eval mode) and the configuration of a run folder."""
-    path = Path(run) / "checkpoint.pt"
-    if not path.is_file():
-        raise FileNotFoundError(f"{path} not found: train first with python -m model.train")
-    state = torch.load(path, map_location="cpu", weights_only=False)
+    state = load_checkpoint(Path(run) / "checkpoint.pt")
     cfg = TrainConfig(**state["config"])
     model = build_model(cfg)
     model.load_state_dict(state["model"])
@@ -68,6 +65,11 @@ def decoded_points(model, octree_batch, points_batch, resolution: int, seed: int
 def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, limit: int | None = None,
              mesh_dir: str | None = None, batch_size: int = 8, seed: int = 0) -> dict:
     model, cfg = load_run(run)
+    if mesh_dir:
+        try:
+            os.makedirs(mesh_dir, exist_ok=True)
+        except OSError as exc:
+            raise ValueError(f"cannot create --mesh-dir {mesh_dir}: {exc.strerror}") from None
     kind = ARCHS[cfg.arch].octree
     records = RecordSet(data, split, kind, points=20_000, depth=cfg.depth, limit=limit, seed=seed)
     per_cat: dict[str, list[float]] = {}
@@ -85,9 +87,9 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
                 sizes["decoded_nodes"].append(sum(tree.nodes_per_depth()))
                 sizes["decoded_leaves"].append(sum(tree.leaves_per_depth()))
                 if mesh_dir and model.decoder.has_plane(tree.depth):
-                    os.makedirs(mesh_dir, exist_ok=True)
                     tree.normalizations = [sample.octree.normalizations[0]]
-                    patches_to_mesh(tree).export(os.path.join(mesh_dir, f"{sample.shape_id}.ply"))
+                    write_atomic(os.path.join(mesh_dir, f"{sample.shape_id}.ply"),
+                                 patches_to_mesh(tree).export(file_type="ply"))
     means = {c: float(np.mean(v)) for c, v in sorted(per_cat.items())}
     return {
         "run": str(run), "arch": cfg.arch, "depth": cfg.depth, "split": split, "resolution": resolution,
@@ -109,6 +111,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--limit", type=int, default=None)
     args = ap.parse_args(argv)
     try:
+        folder = os.path.dirname(os.path.abspath(args.out))
+        if not os.path.isdir(folder):
+            raise ValueError(f"--out {args.out}: the folder {folder} does not exist")
+        if args.resolution < 2 or args.limit is not None and args.limit < 1:
+            raise ValueError("--resolution must be at least 2 and --limit at least 1")
         results = evaluate(args.run, args.data, args.split, args.resolution, args.limit, args.mesh_dir)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)

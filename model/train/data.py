@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,7 +43,11 @@ class RecordSet:
         rng = np.random.default_rng(seed)
         self.samples: list[Sample] = []
         for r in rows:
-            rec = load_record(data_dir / r["path"])
+            try:
+                rec = load_record(data_dir / r["path"])
+            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:   # missing, truncated or foreign file
+                raise ValueError(f"{data_dir / r['path']} is missing or damaged ({type(exc).__name__}); "
+                                 "rerun python -m model.data build to repair the dataset") from None
             tree = octree_from_arrays(rec.arrays, prefix=f"{octree}_", neighbors=False)
             cube = tree.normalizations[0].to_cube(rec["points"])
             pick = rng.choice(len(cube), size=points, replace=len(cube) < points)

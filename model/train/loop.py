@@ -41,6 +41,39 @@ class TrainConfig:
     limit: int | None = None
     progress: bool = True
 
+    def check(self) -> None:
+        """Raise ValueError naming the first setting that cannot train."""
+        if self.arch not in ARCHS:
+            raise ValueError(f"unknown arch {self.arch!r}; choose from {', '.join(sorted(ARCHS))}")
+        for name in ("iters", "batch_size", "val_every", "ckpt_every", "latent", "channels"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
+        if self.limit is not None and self.limit < 1:
+            raise ValueError(f"--limit must be at least 1, got {self.limit}")
+        if self.epochs is not None and not self.epochs > 0:
+            raise ValueError(f"--epochs must be positive, got {self.epochs}")
+        if self.lr is not None and not self.lr > 0:
+            raise ValueError(f"--lr must be positive, got {self.lr}")
+        if not self.weight_decay >= 0:
+            raise ValueError(f"--weight-decay must be >= 0, got {self.weight_decay}")
+        out = Path(self.out)
+        if out.exists() and not out.is_dir():
+            raise ValueError(f"--out {self.out} is a file; give a run folder")
+
+
+def load_checkpoint(path: Path) -> dict:
+    """A checkpoint written by :meth:`Trainer.save`; ValueError if it is missing or unreadable."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found: train first with python -m model.train")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # torch raises many types for a damaged file
+        raise ValueError(f"{path} is not a readable checkpoint ({type(exc).__name__}); "
+                         "delete it or use another run folder") from None
+    if not isinstance(state, dict) or not {"model", "config", "step"} <= set(state):
+        raise ValueError(f"{path} is not a checkpoint of python -m model.train")
+    return state
+
 
 def build_model(cfg: TrainConfig) -> Autoencoder:
     return Autoencoder(cfg.arch, cfg.depth, latent=cfg.latent, base_channels=cfg.channels)
@@ -50,8 +83,7 @@ class Trainer:
     """One training run (one process of a distributed run when WORLD_SIZE > 1)."""
 
     def __init__(self, cfg: TrainConfig):
-        if cfg.arch not in ARCHS:
-            raise ValueError(f"unknown arch {cfg.arch!r}")
+        cfg.check()
         self.cfg = cfg
         self.world = int(os.environ.get("WORLD_SIZE", "1"))
         self.rank = int(os.environ.get("RANK", "0"))
@@ -82,7 +114,10 @@ class Trainer:
         self.step = 0
         self.out = Path(cfg.out)
         if self.rank == 0:
-            self.out.mkdir(parents=True, exist_ok=True)
+            try:
+                self.out.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise ValueError(f"cannot create the run folder {self.out}: {exc.strerror}") from None
         self._resume()
 
     # -- checkpoints ----------------------------------------------------------------------------
@@ -95,7 +130,7 @@ class Trainer:
             if self.rank == 0:
                 (self.out / "config.json").write_text(json.dumps(asdict(self.cfg), indent=1) + "\n")
             return
-        state = torch.load(self.ckpt_path, map_location="cpu", weights_only=False)
+        state = load_checkpoint(self.ckpt_path)
         saved = state["config"]
         for key in ("arch", "depth", "latent", "channels", "batch_size", "seed"):
             if saved[key] != getattr(self.cfg, key):

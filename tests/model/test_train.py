@@ -95,3 +95,53 @@ def test_train_and_evaluate_commands_end_to_end(tiny_data, tmp_path):
     assert res["shapes"] == 3 and np.isfinite(res["chamfer_x1e3_category_mean"])
     bad = subprocess.run(cmd[:-1] + ["--depth", "6"], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and "depth" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("extra, needle", [
+    (["--iters", "0"], "--iters must be at least 1"),
+    (["--batch-size", "-1"], "--batch-size must be at least 1"),
+    (["--lr", "0"], "--lr must be positive"),
+    (["--epochs", "-2"], "--epochs must be positive"),
+])
+def test_train_rejects_bad_settings_in_one_line(tiny_data, tmp_path, capsys, extra, needle):
+    from model.train.__main__ import main
+
+    code = main(["autoencoder", "--data", str(tiny_data), "--depth", "5", "--out", str(tmp_path / "r"),
+                 "--quiet", *extra])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and needle in err[0]
+    assert not (tmp_path / "r").exists()
+
+
+def test_damaged_checkpoint_run_folder_and_record_give_one_line_errors(tiny_data, tmp_path, capsys):
+    import shutil
+
+    from model.evaluate import main as evaluate_main
+    from model.train.__main__ import main as train_main
+
+    base = ["autoencoder", "--data", str(tiny_data), "--depth", "5", "--iters", "1", "--quiet"]
+    (tmp_path / "afile").write_text("x")
+    assert train_main(base + ["--out", str(tmp_path / "afile")]) == 2
+    assert "is a file" in capsys.readouterr().err
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    assert train_main(base + ["--out", str(run)]) == 2
+    assert "not a readable checkpoint" in capsys.readouterr().err
+    assert evaluate_main([str(run), "--data", str(tiny_data), "--out", str(tmp_path / "e.json")]) == 2
+    assert "not a readable checkpoint" in capsys.readouterr().err
+    assert evaluate_main([str(run), "--data", str(tiny_data), "--out", str(tmp_path / "no" / "e.json")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+
+    data = tmp_path / "data"
+    shutil.copytree(tiny_data, data)
+    manifest = json.loads((data / "manifest.json").read_text())
+    victim = data / manifest["records"][0]["path"]
+    victim.write_bytes(victim.read_bytes()[: victim.stat().st_size // 2])
+    good = tmp_path / "good"
+    assert train_main(["autoencoder", "--data", str(data), "--depth", "5", "--iters", "1", "--quiet",
+                       "--out", str(good)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "damaged" in err[0] and victim.name in err[0]
+    assert not (tmp_path / "e.json").exists()
