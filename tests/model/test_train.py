@@ -93,6 +93,26 @@ def test_train_and_evaluate_commands_end_to_end(tiny_data, tmp_path):
     assert proc.returncode == 0
     res = json.loads(out.read_text())
     assert res["shapes"] == 3 and np.isfinite(res["chamfer_x1e3_category_mean"])
+    assert len(list((tmp_path / "meshes").glob("*.ply"))) == 3
+    rows = res["per_shape"]
+    by_cat = {}
+    for r in rows:
+        by_cat.setdefault(r["category"], []).append(r["chamfer_x1e3"])
+    assert {c: np.mean(v) for c, v in by_cat.items()} == pytest.approx(res["chamfer_x1e3"])
+    # teacher-forced statuses: every octant of every depth is counted once
+    assert sorted(res["status"]) == ["2", "3", "4", "5"]
+    assert np.sum(res["status"]["2"]["confusion"]) == 3 * 64
+    for d, st in res["status"].items():
+        assert np.sum(st["confusion"]) == sum(st["truth_count"].values()) == sum(st["predicted_count"].values())
+        assert 0 <= st["accuracy"] <= 1
+    # the oracle decodes the true structure: node counts equal the truth's, shape by shape
+    oracle = tmp_path / "oracle.json"
+    proc = subprocess.run([sys.executable, "-m", "model.evaluate", str(run), "--data", str(tiny_data),
+                           "--split", "train", "--limit", "3", "--out", str(oracle), "--resolution", "32",
+                           "--oracle-structure"], cwd=REPO, timeout=300)
+    assert proc.returncode == 0
+    for r in json.loads(oracle.read_text())["per_shape"]:
+        assert r["decoded_nodes"] == r["truth_nodes"]
     bad = subprocess.run(cmd[:-1] + ["--depth", "6"], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and "depth" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
 
