@@ -1,0 +1,108 @@
+"""Compare evaluation results: the Table 3 layout in Markdown, and paired per-shape differences.
+
+    python -m model.results_table BASE.json OTHER.json [...] [--bootstrap 10000]
+
+Every file is written by ``python -m model.evaluate`` on the same split.  Besides the per-category
+table, each result after the first is compared with the first shape by shape: the difference of
+category means with a 95% bootstrap interval (shapes resampled within categories) and how many
+shapes each side wins, so that a gap can be told from test-set noise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class PairedDifference:
+    """Category-mean Chamfer of ``other`` minus ``base`` (x1e3), over the shapes both evaluated."""
+
+    mean: float
+    low: float
+    high: float
+    base_wins: int
+    other_wins: int
+    shapes: int
+
+
+def load_results(path: str | Path) -> dict:
+    """An evaluation JSON with per-shape rows (ValueError if it is not one)."""
+    try:
+        res = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: not a readable results file ({type(exc).__name__})") from None
+    if not isinstance(res, dict) or "per_shape" not in res:
+        raise ValueError(f"{path}: no per-shape rows; evaluate again with python -m model.evaluate")
+    return res
+
+
+def markdown_table(results: list[dict], labels: list[str]) -> str:
+    """Per-category test means, category mean and mean octree sizes, one row per result."""
+    cats = sorted({c for r in results for c in r["chamfer_x1e3"]})
+    lines = ["| run | " + " | ".join(cats) + " | **mean** | decoded nodes | truth nodes |",
+             "|---|" + "---|" * (len(cats) + 3)]
+    for label, r in zip(labels, results):
+        o = r["octree"]
+        cells = [f"{r['chamfer_x1e3'][c]:.2f}" if c in r["chamfer_x1e3"] else "—" for c in cats]
+        decoded = f"{o['decoded_nodes']:.0f}" if o.get("decoded_nodes") else "—"
+        lines.append(f"| {label} | " + " | ".join(cells) +
+                     f" | **{r['chamfer_x1e3_category_mean']:.3f}** | {decoded} | {o['truth_nodes']:.0f} |")
+    return "\n".join(lines)
+
+
+def paired_difference(base: dict, other: dict, draws: int = 10_000, seed: int = 0) -> PairedDifference:
+    """Difference of category means over the shapes both results hold, with a stratified bootstrap."""
+    a = {(r["category"], r["shape_id"]): r["chamfer_x1e3"] for r in base["per_shape"]}
+    b = {(r["category"], r["shape_id"]): r["chamfer_x1e3"] for r in other["per_shape"]}
+    common = sorted(set(a) & set(b))
+    if not common:
+        raise ValueError("the two results share no shapes")
+    rng = np.random.default_rng(seed)
+    diffs_by_cat: dict[str, np.ndarray] = {}
+    for cat in sorted({c for c, _ in common}):
+        keys = [k for k in common if k[0] == cat]
+        diffs_by_cat[cat] = np.array([b[k] - a[k] for k in keys])
+    mean = float(np.mean([d.mean() for d in diffs_by_cat.values()]))
+    boot = np.zeros(draws)
+    for d in diffs_by_cat.values():
+        boot += d[rng.integers(0, len(d), size=(draws, len(d)))].mean(1)
+    boot /= len(diffs_by_cat)
+    low, high = np.percentile(boot, [2.5, 97.5])
+    all_d = np.concatenate(list(diffs_by_cat.values()))
+    return PairedDifference(mean, float(low), float(high), int((all_d > 0).sum()), int((all_d < 0).sum()),
+                            len(common))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m model.results_table", description=__doc__.splitlines()[0])
+    ap.add_argument("results", nargs="+", help="results JSONs of python -m model.evaluate; the first is the base")
+    ap.add_argument("--bootstrap", type=int, default=10_000, help="bootstrap draws for the intervals")
+    args = ap.parse_args(argv)
+    try:
+        if args.bootstrap < 100:
+            raise ValueError("--bootstrap must be at least 100")
+        results = [load_results(p) for p in args.results]
+        labels = [Path(p).stem + (" (oracle structure)" if r.get("oracle_structure") else "")
+                  for r, p in zip(results, args.results)]
+        print(markdown_table(results, labels))
+        if len(results) > 1:
+            print(f"\nPaired against {labels[0]} (other − base, Chamfer x1e3 category mean, 95% bootstrap):")
+            print("| run | difference | 95% interval | base better / other better | shapes |\n|---|---|---|---|---|")
+            for label, r in zip(labels[1:], results[1:]):
+                d = paired_difference(results[0], r, args.bootstrap)
+                print(f"| {label} | {d.mean:+.3f} | [{d.low:+.3f}, {d.high:+.3f}] | "
+                      f"{d.base_wins} / {d.other_wins} | {d.shapes} |")
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

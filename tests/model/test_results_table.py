@@ -1,0 +1,44 @@
+"""Comparing evaluation results: the table and the paired, stratified bootstrap."""
+
+import json
+
+import numpy as np
+import pytest
+
+from model.results_table import main, markdown_table, paired_difference
+
+
+def results(values: dict[str, list[float]], arch="aocnn") -> dict:
+    rows = [{"category": c, "shape_id": f"{c}_{i}", "chamfer_x1e3": v, "truth_nodes": 10}
+            for c, vs in values.items() for i, v in enumerate(vs)]
+    means = {c: float(np.mean(v)) for c, v in values.items()}
+    return {"arch": arch, "per_shape": rows, "chamfer_x1e3": means,
+            "chamfer_x1e3_category_mean": float(np.mean(list(means.values()))),
+            "octree": {"decoded_nodes": 5.0, "truth_nodes": 10.0}}
+
+
+def test_paired_difference_is_the_difference_of_category_means_with_a_covering_interval():
+    rng = np.random.default_rng(0)
+    base = {"a": list(rng.random(30)), "b": list(rng.random(10) + 2)}
+    shift = {"a": [v + 0.5 for v in base["a"]], "b": [v - 0.1 for v in base["b"]]}
+    d = paired_difference(results(base), results(shift), draws=2000)
+    assert d.mean == pytest.approx((0.5 - 0.1) / 2)
+    assert d.low == pytest.approx(0.2) and d.high == pytest.approx(0.2)   # constant shifts: no spread
+    assert (d.base_wins, d.other_wins, d.shapes) == (30, 10, 40)
+    noisy = {"a": [v + rng.normal(0, 0.3) for v in base["a"]], "b": base["b"]}
+    n = paired_difference(results(base), results(noisy), draws=4000)
+    assert n.low < n.mean < n.high and n.high - n.low > 0.05
+
+
+def test_table_and_command(tmp_path, capsys):
+    a, b = results({"chair": [1.0, 2.0]}), results({"chair": [1.5, 2.5]}, arch="psg")
+    assert "**1.500**" in markdown_table([a], ["x"])
+    pa, pb = tmp_path / "a.json", tmp_path / "b.json"
+    pa.write_text(json.dumps(a))
+    pb.write_text(json.dumps(b))
+    assert main([str(pa), str(pb), "--bootstrap", "200"]) == 0
+    out = capsys.readouterr().out
+    assert "| b | +0.500 | [+0.500, +0.500] | 2 / 0 | 2 |" in out
+    pb.write_text("{}")
+    assert main([str(pa), str(pb)]) == 2
+    assert "no per-shape rows" in capsys.readouterr().err
