@@ -1,15 +1,16 @@
 """Evaluate a trained autoencoder with the paper's protocol (section 5.2).
 
     python -m model.evaluate RUN --data DIR [--split test] --out results.json [--mesh-dir DIR]
-                             [--resolution 128] [--limit N] [--oracle-structure]
+                             [--resolution 128] [--limit N] [--oracle structure|all]
 
 Each shape is encoded, decoded by growing its octree (the shared decode loop), its leaf patches
 sampled at one point per sub-patch of the resolution^3 grid, and compared with its ground-truth
 points by the Chamfer distance (reported x 10^3, per category and as the category mean, in
 unit-cube coordinates).  Octree decoders without planes (O-CNN binary) give their finest
 octants' centres; the point-set decoder gives its points.  The results also hold per-shape
-values and, for octree decoders, the teacher-forced status accuracy per depth; --oracle-structure
-decodes with the true statuses to separate structure errors from patch errors.
+values and, for octree decoders, the teacher-forced status accuracy per depth.  Diagnostics:
+--oracle structure decodes with the true statuses (separating structure errors from patch
+errors); --oracle all also takes the true planes (the representation's own floor).
 """
 
 from __future__ import annotations
@@ -45,12 +46,15 @@ def load_run(run: str | Path) -> tuple[torch.nn.Module, TrainConfig]:
     return model.eval(), cfg
 
 
-class OracleStructure:
-    """Decoder steps whose statuses are the ground truth's (the network still gives the planes):
-    separates the Chamfer lost to wrong structure from the Chamfer lost to wrong patches."""
+ORACLES = ("none", "structure", "all")
 
-    def __init__(self, steps: TorchSteps, truth: Octree):
-        self.steps, self.truth, self.depth = steps, truth, steps.depth
+
+class Oracle:
+    """Decoder steps whose statuses (and with ``planes``, planes) are the ground truth's:
+    separates the Chamfer lost to wrong structure, to wrong patches, and to the representation."""
+
+    def __init__(self, steps: TorchSteps, truth: Octree, planes: bool = False):
+        self.steps, self.truth, self.depth, self.planes = steps, truth, steps.depth, planes
 
     def classes(self, depth: int) -> int:
         return self.steps.classes(depth)
@@ -62,6 +66,8 @@ class OracleStructure:
         x, logits, plane = self.steps.predict(depth, x, neighbors)
         label = self.truth.levels[depth].label
         status = (label != EMPTY).astype(np.int64) if self.classes(depth) == 2 else label.astype(np.int64)
+        if self.planes and plane is not None:
+            plane = self.truth.levels[depth].plane
         return x, np.eye(self.classes(depth), dtype=np.float32)[status], plane
 
     def expand(self, depth: int, x, split: np.ndarray):
@@ -83,7 +89,7 @@ def status_confusion(model, octree_batch) -> dict[int, np.ndarray]:
     return out
 
 
-def decoded_points(model, octree_batch, points_batch, resolution: int, seed: int, oracle: bool = False):
+def decoded_points(model, octree_batch, points_batch, resolution: int, seed: int, oracle: str = "none"):
     """Per shape of the batch: decoded points in cube coordinates, and the decoded octree (or None)."""
     with torch.no_grad():
         latent = model.encoder(OctreeTensors.from_octree(octree_batch))
@@ -93,7 +99,9 @@ def decoded_points(model, octree_batch, points_batch, resolution: int, seed: int
         return [(p.astype(np.float64), None) for p in pts]
     steps = TorchSteps(model.decoder)
     out = []
-    for tree in split_octree(decode(OracleStructure(steps, octree_batch) if oracle else steps, latent.numpy())):
+    if oracle != "none":
+        steps = Oracle(steps, octree_batch, planes=oracle == "all")
+    for tree in split_octree(decode(steps, latent.numpy())):
         if model.decoder.has_plane(tree.depth):
             pts = sample_patches(tree, resolution=resolution, seed=seed, world=False)
         else:
@@ -104,7 +112,7 @@ def decoded_points(model, octree_batch, points_batch, resolution: int, seed: int
 
 
 def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, limit: int | None = None,
-             mesh_dir: str | None = None, batch_size: int = 8, seed: int = 0, oracle: bool = False) -> dict:
+             mesh_dir: str | None = None, batch_size: int = 8, seed: int = 0, oracle: str = "none") -> dict:
     """The results dictionary written by the CLI (see the module docstring)."""
     model, cfg = load_run(run)
     if mesh_dir:
@@ -114,8 +122,10 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
             raise ValueError(f"cannot create --mesh-dir {mesh_dir}: {exc.strerror}") from None
     kind = ARCHS[cfg.arch].octree
     records = RecordSet(data, split, kind, points=20_000, depth=cfg.depth, limit=limit, seed=seed)
-    if oracle and model.arch.decoder == "psg":
-        raise ValueError("--oracle-structure needs an octree decoder, not psg")
+    if oracle not in ORACLES:
+        raise ValueError(f"--oracle must be one of {', '.join(ORACLES)}")
+    if oracle != "none" and model.arch.decoder == "psg":
+        raise ValueError("--oracle needs an octree decoder, not psg")
     per_cat: dict[str, list[float]] = {}
     per_shape: list[dict] = []
     confusion: dict[int, np.ndarray] = {}
@@ -148,7 +158,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         "run": str(run), "arch": cfg.arch, "depth": cfg.depth, "split": split, "resolution": resolution,
         "shapes": int(sum(len(v) for v in per_cat.values())),
         "chamfer_x1e3": means, "chamfer_x1e3_category_mean": float(np.mean(list(means.values()))),
-        "oracle_structure": oracle,
+        "oracle": oracle,
         "octree": {k: float(np.mean(v)) if v else None for k, v in sizes.items()},
         "status": {str(d): status_summary(m) for d, m in sorted(confusion.items())},
         "per_shape": per_shape,
@@ -179,8 +189,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mesh-dir", default=None, help="write decoded patch meshes (PLY) here")
     ap.add_argument("--resolution", type=int, default=128)
     ap.add_argument("--limit", type=int, default=None)
-    ap.add_argument("--oracle-structure", action="store_true",
-                    help="diagnostic: decode with the ground-truth statuses and the predicted planes")
+    ap.add_argument("--oracle", choices=ORACLES, default="none",
+                    help="diagnostic: decode with the true statuses ('structure') and planes ('all')")
     args = ap.parse_args(argv)
     try:
         folder = os.path.dirname(os.path.abspath(args.out))
@@ -189,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.resolution < 2 or args.limit is not None and args.limit < 1:
             raise ValueError("--resolution must be at least 2 and --limit at least 1")
         results = evaluate(args.run, args.data, args.split, args.resolution, args.limit, args.mesh_dir,
-                           oracle=args.oracle_structure)
+                           oracle=args.oracle)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

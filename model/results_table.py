@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.bootstrap < 100:
             raise ValueError("--bootstrap must be at least 100")
         results = [load_results(p) for p in args.results]
-        labels = [Path(p).stem + (" (oracle structure)" if r.get("oracle_structure") else "")
+        labels = [Path(p).stem + (f" (oracle {r['oracle']})" if r.get("oracle", "none") != "none" else "")
                   for r, p in zip(results, args.results)]
         print(markdown_table(results, labels))
         if len(results) > 1:

@@ -109,10 +109,16 @@ def test_train_and_evaluate_commands_end_to_end(tiny_data, tmp_path):
     oracle = tmp_path / "oracle.json"
     proc = subprocess.run([sys.executable, "-m", "model.evaluate", str(run), "--data", str(tiny_data),
                            "--split", "train", "--limit", "3", "--out", str(oracle), "--resolution", "32",
-                           "--oracle-structure"], cwd=REPO, timeout=300)
+                           "--oracle", "structure"], cwd=REPO, timeout=300)
     assert proc.returncode == 0
     for r in json.loads(oracle.read_text())["per_shape"]:
         assert r["decoded_nodes"] == r["truth_nodes"]
+    # with the true planes too, the decoded patches are the truth's own: the representation floor
+    from model.evaluate import main as evaluate_main
+    assert evaluate_main([str(run), "--data", str(tiny_data), "--split", "train", "--limit", "3",
+                          "--out", str(oracle), "--resolution", "32", "--oracle", "all"]) == 0
+    floor = json.loads(oracle.read_text())
+    assert floor["chamfer_x1e3_category_mean"] < min(res["chamfer_x1e3_category_mean"], 0.5)
     bad = subprocess.run(cmd[:-1] + ["--depth", "6"], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and "depth" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
 
