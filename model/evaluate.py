@@ -29,7 +29,7 @@ from .decode import decode
 from .files import write_atomic
 from .networks import ARCHS, TorchSteps
 from .nn.tensors import OctreeTensors
-from .octree import EMPTY, LEAF, Octree
+from .octree import LEAF, Octree
 from .octree.metrics import chamfer_distance, sample_patches
 from .octree.patches import patches_to_mesh
 from .octree.batch import split_octree
@@ -64,8 +64,8 @@ class Oracle:
 
     def predict(self, depth: int, x, neighbors: np.ndarray):
         x, logits, plane = self.steps.predict(depth, x, neighbors)
-        label = self.truth.levels[depth].label
-        status = (label != EMPTY).astype(np.int64) if self.classes(depth) == 2 else label.astype(np.int64)
+        label = torch.from_numpy(self.truth.levels[depth].label)
+        status = self.steps.decoder.status_targets(depth, label).numpy()
         if self.planes and plane is not None:
             plane = self.truth.levels[depth].plane
         return x, np.eye(self.classes(depth), dtype=np.float32)[status], plane
@@ -74,12 +74,11 @@ class Oracle:
         return self.steps.expand(depth, x, split)
 
 
-def status_confusion(model, octree_batch) -> dict[int, np.ndarray]:
+def status_confusion(model, latent: torch.Tensor, tensors: OctreeTensors) -> dict[int, np.ndarray]:
     """Per depth, the confusion matrix (truth x predicted status) of teacher-forced predictions."""
-    tensors = OctreeTensors.from_octree(octree_batch)
     dec = model.decoder
     with torch.no_grad():
-        outputs = dec(model.encoder(tensors), tensors)
+        outputs = dec(latent, tensors)
     out = {}
     for (logits, _), d in zip(outputs, range(dec.full_depth, dec.depth + 1)):
         k = dec.classes(d)
@@ -89,10 +88,9 @@ def status_confusion(model, octree_batch) -> dict[int, np.ndarray]:
     return out
 
 
-def decoded_points(model, octree_batch, points_batch, resolution: int, seed: int, oracle: str = "none"):
+def decoded_points(model, latent: torch.Tensor, octree_batch: Octree, resolution: int, seed: int,
+                   oracle: str = "none") -> list[tuple[np.ndarray, Octree | None]]:
     """Per shape of the batch: decoded points in cube coordinates, and the decoded octree (or None)."""
-    with torch.no_grad():
-        latent = model.encoder(OctreeTensors.from_octree(octree_batch))
     if model.arch.decoder == "psg":
         with torch.no_grad():
             pts = model.decoder(latent).numpy()
@@ -133,11 +131,14 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     t = time.perf_counter()
     for s in range(0, len(records), batch_size):
         idx = np.arange(s, min(len(records), s + batch_size))
-        octree, points = records.batch(idx)
+        octree, _ = records.batch(idx)
+        tensors = OctreeTensors.from_octree(octree)
+        with torch.no_grad():
+            latent = model.encoder(tensors)
         if model.arch.decoder != "psg":
-            for d, m in status_confusion(model, octree).items():
+            for d, m in status_confusion(model, latent, tensors).items():
                 confusion[d] = confusion.get(d, 0) + m
-        for i, (pts, tree) in zip(idx, decoded_points(model, octree, points, resolution, seed, oracle)):
+        for i, (pts, tree) in zip(idx, decoded_points(model, latent, octree, resolution, seed, oracle)):
             sample = records.samples[i]
             cd = chamfer_distance(sample.points, pts) if len(pts) else float("inf")
             per_cat.setdefault(sample.category, []).append(cd * 1e3)
