@@ -112,7 +112,11 @@ def decoded_points(model, latent: torch.Tensor, octree_batch: Octree, resolution
 def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, limit: int | None = None,
              mesh_dir: str | None = None, batch_size: int = 8, seed: int = 0, oracle: str = "none") -> dict:
     """The results dictionary written by the CLI (see the module docstring)."""
+    if oracle not in ORACLES:
+        raise ValueError(f"--oracle must be one of {', '.join(ORACLES)}")
     model, cfg = load_run(run)
+    if oracle != "none" and model.arch.decoder == "psg":
+        raise ValueError("--oracle needs an octree decoder, not psg")
     if mesh_dir:
         try:
             os.makedirs(mesh_dir, exist_ok=True)
@@ -120,10 +124,6 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
             raise ValueError(f"cannot create --mesh-dir {mesh_dir}: {exc.strerror}") from None
     kind = ARCHS[cfg.arch].octree
     records = RecordSet(data, split, kind, points=20_000, depth=cfg.depth, limit=limit, seed=seed)
-    if oracle not in ORACLES:
-        raise ValueError(f"--oracle must be one of {', '.join(ORACLES)}")
-    if oracle != "none" and model.arch.decoder == "psg":
-        raise ValueError("--oracle needs an octree decoder, not psg")
     per_cat: dict[str, list[float]] = {}
     per_shape: list[dict] = []
     confusion: dict[int, np.ndarray] = {}

@@ -62,7 +62,8 @@ class TrainConfig:
 
 
 def load_checkpoint(path: Path) -> dict:
-    """A checkpoint written by :meth:`Trainer.save`; ValueError if it is missing or unreadable."""
+    """A checkpoint written by :meth:`Trainer.save`: FileNotFoundError if it is missing,
+    ValueError if it cannot be read or is something else."""
     if not path.is_file():
         raise FileNotFoundError(f"{path} not found: train first with python -m model.train")
     try:
