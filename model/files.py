@@ -8,6 +8,15 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
+def _read_umask() -> int:
+    """The process umask (read by setting and restoring it: there is no getter)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+UMASK = _read_umask()
+"""Read once at import, before any threads: setting it later would race with other threads."""
 TEMP_PREFIX = "tmp-"
 """Temporary names start with this (no leading dot: torch's zip writer rejects those)."""
 
@@ -15,9 +24,12 @@ TEMP_PREFIX = "tmp-"
 @contextmanager
 def atomic_path(path: str | Path, fsync: bool = False) -> Iterator[str]:
     """A temporary path beside ``path`` (same suffix) that replaces ``path`` when the block ends
-    without error, and is removed otherwise: readers see the old file or the whole new one."""
+    without error, and is removed otherwise: readers see the old file or the whole new one.
+    The file gets the permissions a plain ``open(path, "w")`` would give (0666 less the umask),
+    not mkstemp's private 0600."""
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX, suffix=path.suffix, dir=path.parent)
+    os.fchmod(fd, 0o666 & ~UMASK)
     os.close(fd)
     try:
         yield tmp

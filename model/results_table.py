@@ -1,17 +1,20 @@
 """Compare evaluation results: the Table 3 layout in Markdown, and paired per-shape differences.
 
-    python -m model.results_table BASE.json OTHER.json [...] [--bootstrap 10000]
+    python -m model.results_table BASE.json OTHER.json [...] [--bootstrap 10000] [--icp]
 
 Every file is written by ``python -m model.evaluate`` on the same split.  Besides the per-category
 table, each result after the first is compared with the first shape by shape: the difference of
 category means with a 95% bootstrap interval (shapes resampled within categories) and how many
-shapes each side wins, so that a gap can be told from test-set noise.
+shapes each side wins, so that a gap can be told from test-set noise.  ``--icp`` compares the Chamfer distances after
+ICP alignment (results evaluated with ``--icp``).  Shapes a model decoded to nothing have no
+value and are left out of its pairs; the table counts them.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from dataclasses import dataclass
@@ -43,27 +46,39 @@ def load_results(path: str | Path) -> dict:
     return res
 
 
-def markdown_table(results: list[dict], labels: list[str]) -> str:
-    """Per-category test means, category mean and mean octree sizes, one row per result."""
-    cats = sorted({c for r in results for c in r["chamfer_x1e3"]})
-    lines = ["| run | " + " | ".join(cats) + " | **mean** | decoded nodes | truth nodes |",
-             "|---|" + "---|" * (len(cats) + 3)]
+def _finite(value) -> bool:
+    return isinstance(value, (int, float)) and math.isfinite(value)
+
+
+def markdown_table(results: list[dict], labels: list[str], metric: str = "chamfer_x1e3") -> str:
+    """Per-category test means, category mean, empty outputs and mean octree sizes, one row per result."""
+    for r in results:
+        if metric not in r:
+            raise ValueError(f"{r.get('run', 'a result')} has no {metric}: evaluate it with --icp")
+    cats = sorted({row["category"] for r in results for row in r["per_shape"]})
+    lines = ["| run | " + " | ".join(cats) + " | **mean** | empty outputs | decoded nodes | truth nodes |",
+             "|---|" + "---|" * (len(cats) + 4)]
     for label, r in zip(labels, results):
         o = r["octree"]
-        cells = [f"{r['chamfer_x1e3'][c]:.2f}" if c in r["chamfer_x1e3"] else "—" for c in cats]
-        decoded = f"{o['decoded_nodes']:.0f}" if o.get("decoded_nodes") else "—"
+        cells = [f"{r[metric][c]:.2f}" if _finite(r[metric].get(c)) else "—" for c in cats]
+        mean = r.get(f"{metric}_category_mean")
+        mean_cell = f"**{mean:.3f}**" if _finite(mean) else "—"
+        decoded = f"{o['decoded_nodes']:.0f}" if _finite(o.get("decoded_nodes")) else "—"
+        truth = f"{o['truth_nodes']:.0f}" if _finite(o.get("truth_nodes")) else "—"
         lines.append(f"| {label} | " + " | ".join(cells) +
-                     f" | **{r['chamfer_x1e3_category_mean']:.3f}** | {decoded} | {o['truth_nodes']:.0f} |")
+                     f" | {mean_cell} | {r.get('empty_outputs', 0)} | {decoded} | {truth} |")
     return "\n".join(lines)
 
 
-def paired_difference(base: dict, other: dict, draws: int = 10_000, seed: int = 0) -> PairedDifference:
-    """Difference of category means over the shapes both results hold, with a stratified bootstrap."""
-    a = {(r["category"], r["shape_id"]): r["chamfer_x1e3"] for r in base["per_shape"]}
-    b = {(r["category"], r["shape_id"]): r["chamfer_x1e3"] for r in other["per_shape"]}
+def paired_difference(base: dict, other: dict, draws: int = 10_000, seed: int = 0,
+                      metric: str = "chamfer_x1e3") -> PairedDifference:
+    """Difference of category means over the shapes both results hold a value for, with a
+    stratified bootstrap."""
+    a = {(r["category"], r["shape_id"]): r.get(metric) for r in base["per_shape"] if _finite(r.get(metric))}
+    b = {(r["category"], r["shape_id"]): r.get(metric) for r in other["per_shape"] if _finite(r.get(metric))}
     common = sorted(set(a) & set(b))
     if not common:
-        raise ValueError("the two results share no shapes")
+        raise ValueError("the two results share no shapes with a value")
     rng = np.random.default_rng(seed)
     diffs_by_cat: dict[str, np.ndarray] = {}
     for cat in sorted({c for c, _ in common}):
@@ -83,7 +98,8 @@ def paired_difference(base: dict, other: dict, draws: int = 10_000, seed: int = 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m model.results_table", description=__doc__.splitlines()[0])
     ap.add_argument("results", nargs="+", help="results JSONs of python -m model.evaluate; the first is the base")
-    ap.add_argument("--bootstrap", type=int, default=10_000, help="bootstrap draws for the intervals")
+    ap.add_argument("--bootstrap", type=int, default=10_000, help="bootstrap draws for the intervals (default 10000)")
+    ap.add_argument("--icp", action="store_true", help="compare the Chamfer distances after ICP alignment")
     args = ap.parse_args(argv)
     try:
         if args.bootstrap < 100:
@@ -91,12 +107,14 @@ def main(argv: list[str] | None = None) -> int:
         results = [load_results(p) for p in args.results]
         labels = [Path(p).stem + (f" (oracle {r['oracle']})" if r.get("oracle", "none") != "none" else "")
                   for r, p in zip(results, args.results)]
-        print(markdown_table(results, labels))
+        metric = "chamfer_icp_x1e3" if args.icp else "chamfer_x1e3"
+        print(markdown_table(results, labels, metric))
         if len(results) > 1:
-            print(f"\nPaired against {labels[0]} (other − base, Chamfer x1e3 category mean, 95% bootstrap):")
+            what = "Chamfer x1e3 after ICP" if args.icp else "Chamfer x1e3"
+            print(f"\nPaired against {labels[0]} (other − base, {what} category mean, 95% bootstrap):")
             print("| run | difference | 95% interval | base better / other better | shapes |\n|---|---|---|---|---|")
             for label, r in zip(labels[1:], results[1:]):
-                d = paired_difference(results[0], r, args.bootstrap)
+                d = paired_difference(results[0], r, args.bootstrap, metric=metric)
                 print(f"| {label} | {d.mean:+.3f} | [{d.low:+.3f}, {d.high:+.3f}] | "
                       f"{d.base_wins} / {d.other_wins} | {d.shapes} |")
     except ValueError as exc:

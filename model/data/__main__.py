@@ -22,20 +22,21 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     sub = ap.add_subparsers(dest="command", required=True)
     b = sub.add_parser("build", help="build (or resume) a dataset of per-shape records and a manifest")
     b.add_argument("--out", required=True, help="dataset folder (created; a partial build there is resumed)")
-    b.add_argument("--source", choices=SOURCES, default="procedural")
+    b.add_argument("--source", choices=SOURCES, default="procedural",
+                   help="procedural shapes (default) or a real dataset layout under --root")
     b.add_argument("--root", help="dataset root for --source modelnet40, shapenet or r2n2")
     b.add_argument("--shapenet-root", help="ShapeNetCore.v2 root holding the meshes of --source r2n2")
     b.add_argument("--per-category", type=int, default=None,
                    help="shapes per category (required for procedural; a cap for real datasets)")
     b.add_argument("--categories", nargs="+", default=None, help="only these categories")
     b.add_argument("--depth", type=int, default=6, help="octree depth of the records (default 6)")
-    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--seed", type=int, default=0, help="seed of shapes, renders and partial scans (default 0)")
     b.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 1)),
                    help="worker processes (default: all cores)")
     b.add_argument("--views", type=int, default=24, help="renders per shape (default 24)")
-    b.add_argument("--render-size", type=int, default=137)
+    b.add_argument("--render-size", type=int, default=137, help="render side in pixels (default 137, 3D-R2N2's)")
     b.add_argument("--partial", type=int, default=2, help="partial scans per shape (default 2)")
-    b.add_argument("--scan-resolution", type=int, default=160, help="rays per side of each scanner view")
+    b.add_argument("--scan-resolution", type=int, default=160, help="rays per side of each scanner view (default 160)")
     b.add_argument("--quiet", action="store_true", help="no progress bar")
     return ap.parse_args(argv)
 

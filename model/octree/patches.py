@@ -10,11 +10,13 @@ from .geometry import MAX_POLYGON, cube_polygons
 from .octree import LEAF, Octree
 
 DEPTH_COLORS = np.array([
-    [68, 1, 84], [72, 35, 116], [64, 67, 135], [52, 94, 141], [41, 120, 142], [32, 144, 140],
-    [34, 167, 132], [68, 190, 112], [121, 209, 81], [189, 222, 38], [253, 231, 37],
-    [254, 196, 39], [251, 155, 6], [237, 105, 37], [212, 72, 66], [180, 54, 121], [140, 41, 129],
+    [90, 90, 90], [150, 150, 150], [110, 110, 110],            # depths 0-2 (never leaves in practice)
+    [86, 180, 233], [0, 114, 178], [230, 159, 0], [0, 158, 115], [213, 94, 0],    # 3-7
+    [204, 121, 167], [240, 228, 66], [120, 60, 160], [0, 0, 0], [170, 110, 40],  # 8-12
+    [40, 200, 200], [200, 40, 40], [60, 60, 200], [250, 250, 250],                # 13-16
 ], dtype=np.uint8)
-"""A viridis-like colour per depth 0..16, for looking at which depth each patch came from."""
+"""A colour per depth 0..16, for looking at which depth each patch came from: the Okabe-Ito
+colour-blind-safe hues from depth 3, neighbouring depths in strongly different hues."""
 
 
 @dataclass
