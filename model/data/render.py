@@ -147,11 +147,13 @@ def render(
     color: tuple[float, float, float] = (0.7, 0.7, 0.72),
     ambient: float = 0.25,
     supersample: int = 1,
+    face_colors: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Render ``mesh`` to an RGBA uint8 image with a transparent background.
 
     ``light`` is a key-light direction in camera space (x right, y up, z towards
     the viewer), added to a headlight; ``supersample`` > 1 anti-aliases.
+    ``face_colors`` (F, 3) in [0, 1] colours each face instead of ``color``.
     """
     s = int(size) * int(supersample)
     eye, rot = look_at(azimuth_deg, elevation_deg, distance)
@@ -163,6 +165,8 @@ def render(
     zc = cam[:, 2]
     keep = (zc[f] > near).all(axis=1)
     f = f[keep]
+    per_face = (np.broadcast_to(np.asarray(color, dtype=np.float64), (len(f), 3)) if face_colors is None
+                else np.asarray(face_colors, dtype=np.float64)[keep])
     with np.errstate(all="ignore"):
         sx = 0.5 * s + focal * cam[:, 0] / zc
         sy = 0.5 * s - focal * cam[:, 1] / zc
@@ -176,7 +180,7 @@ def render(
     shade = ambient + (1.0 - ambient) * lam
     covered = fid >= 0
     rgb = np.zeros((s, s, 3))
-    rgb[covered] = shade[fid[covered], None] * np.asarray(color, dtype=np.float64)[None]
+    rgb[covered] = shade[fid[covered], None] * per_face[fid[covered]]
     alpha = covered.astype(np.float64)
     if supersample > 1:
         k = int(supersample)

@@ -14,7 +14,7 @@ import torch
 from torch import nn
 
 from ..nn.tensors import OctreeTensors
-from .decoder import OctreeDecoder
+from .decoder import PAPER_HIDDEN, OctreeDecoder
 from .encoder import OctreeEncoder, default_channels
 from .psg import PointSetDecoder, chamfer_loss
 
@@ -41,7 +41,8 @@ class Autoencoder(nn.Module):
     """Encoder + decoder of one architecture of :data:`ARCHS`, with its training loss."""
 
     def __init__(self, arch: str, depth: int, latent: int = 128, base_channels: int = 8,
-                 top_channels: int = 64, psg_points: int = 2048):
+                 top_channels: int = 64, psg_points: int = 2048, hidden: int = PAPER_HIDDEN,
+                 structure_loss: str = "ce", decoder_blocks: int = 1):
         super().__init__()
         if arch not in ARCHS:
             raise ValueError(f"unknown arch {arch!r}; choose from {', '.join(ARCHS)}")
@@ -49,14 +50,23 @@ class Autoencoder(nn.Module):
         ch = default_channels(depth, base_channels, top_channels)
         self.encoder = OctreeEncoder(depth, ch, latent, signal=self.arch.signal)
         self.decoder: nn.Module = (PointSetDecoder(latent, psg_points) if self.arch.decoder == "psg"
-                                   else OctreeDecoder(depth, ch, latent, mode=self.arch.decoder))
+                                   else OctreeDecoder(depth, ch, latent, mode=self.arch.decoder,
+                                                      hidden=hidden, loss=structure_loss, blocks=decoder_blocks))
 
     def forward(self, octree: OctreeTensors, points: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """Losses on a batch: the octree (input and target) and, for psg, target points (B, M, 3)."""
-        latent = self.encoder(octree)
-        if self.arch.decoder == "psg":
-            if points is None:
-                raise ValueError("the psg decoder needs target points")
-            loss = chamfer_loss(self.decoder(latent), points)
-            return {"chamfer": loss, "total": loss}
-        return self.decoder.loss(self.decoder(latent, octree), octree)
+        return shape_losses(self.decoder, self.encoder(octree), octree, points)
+
+
+def shape_losses(decoder: nn.Module, latent: torch.Tensor, octree: OctreeTensors | None,
+                 points: torch.Tensor | None) -> dict[str, torch.Tensor]:
+    """A decoder's training losses: structure + patch for octree decoders (against ``octree``),
+    the Chamfer distance to ``points`` for point and patch-set decoders."""
+    if isinstance(decoder, OctreeDecoder):
+        if octree is None:
+            raise ValueError("an octree decoder needs the target octree")
+        return decoder.loss(decoder(latent, octree), octree)
+    if points is None:
+        raise ValueError("a point decoder needs target points")
+    loss = chamfer_loss(decoder(latent), points)
+    return {"chamfer": loss, "total": loss}

@@ -22,6 +22,27 @@ from .encoder import default_channels
 MODES = ("adaptive", "binary", "patch", "patch_star")
 NORMAL_WEIGHT = 0.2
 """lambda of the patch loss (paper section 4.2)."""
+STRUCTURE_LOSSES = ("ce", "balanced", "focal")
+"""'ce': the paper's cross-entropy per depth; 'balanced': cross-entropy with each class weighted
+by the inverse of its frequency among the depth's octants in the batch (every present class
+counts equally); 'focal': focal loss, gamma = FOCAL_GAMMA."""
+FOCAL_GAMMA = 2.0
+PAPER_HIDDEN = 8
+"""Hidden width of the prediction module in the paper's appendix."""
+
+
+def structure_loss(logits: torch.Tensor, target: torch.Tensor, kind: str = "ce") -> torch.Tensor:
+    """Status loss of one depth (see :data:`STRUCTURE_LOSSES`); mean over the octants."""
+    if kind == "ce":
+        return F.cross_entropy(logits, target)
+    if kind == "balanced":
+        counts = torch.bincount(target, minlength=logits.shape[1]).to(logits.dtype)
+        weight = torch.where(counts > 0, counts.sum() / counts.clamp_min(1.0), torch.zeros_like(counts))
+        return F.cross_entropy(logits, target, weight=weight)
+    if kind == "focal":
+        logp = F.log_softmax(logits, dim=1).gather(1, target[:, None])[:, 0]
+        return -((1 - logp.exp()) ** FOCAL_GAMMA * logp).mean()
+    raise ValueError(f"structure loss must be one of {STRUCTURE_LOSSES}, got {kind!r}")
 
 
 class OctreeDecoder(nn.Module):
@@ -29,21 +50,29 @@ class OctreeDecoder(nn.Module):
 
     ``mode``: 'adaptive' (3 statuses from ``adaptive_depth``, planes on leaves from there),
     'binary' (empty / non-empty, no planes), 'patch' (planes at the max depth only),
-    'patch_star' (planes at every depth from ``adaptive_depth``).
+    'patch_star' (planes at every depth from ``adaptive_depth``).  ``hidden`` is the prediction
+    module's width, ``loss`` the structure loss (:data:`STRUCTURE_LOSSES`) and ``blocks`` the
+    convolutions per depth; the paper's setting is ``hidden=8, loss='ce', blocks=1``.
     """
 
     def __init__(self, depth: int, channels: dict[int, int] | None = None, latent: int = 128,
-                 mode: str = "adaptive", full_depth: int = 2, adaptive_depth: int = 4, hidden: int = 8):
+                 mode: str = "adaptive", full_depth: int = 2, adaptive_depth: int = 4,
+                 hidden: int = PAPER_HIDDEN, loss: str = "ce", blocks: int = 1):
         super().__init__()
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}")
-        self.depth, self.mode = depth, mode
+        if loss not in STRUCTURE_LOSSES:
+            raise ValueError(f"structure loss must be one of {STRUCTURE_LOSSES}, got {loss!r}")
+        self.depth, self.mode, self.loss_kind = depth, mode, loss
         self.full_depth, self.adaptive_depth = full_depth, adaptive_depth
         self.channels = channels or default_channels(depth, full_depth=full_depth)
         ch = self.channels
         self.fc = nn.Sequential(nn.Linear(latent, 64 * ch[full_depth]), nn.ReLU(inplace=True))
         depths = range(full_depth, depth + 1)
         self.conv = nn.ModuleDict({str(d): ConvBnRelu(ch[d], ch[d]) for d in depths})
+        # blocks > 1: more convolutions per depth (a wider receptive field at the fine depths)
+        self.refine = nn.ModuleDict({str(d): nn.ModuleList([ConvBnRelu(ch[d], ch[d]) for _ in range(blocks - 1)])
+                                     for d in depths}) if blocks > 1 else None
         self.pred = nn.ModuleDict({str(d): nn.Sequential(
             nn.Linear(ch[d], hidden), nn.BatchNorm1d(hidden), nn.ReLU(inplace=True),
             nn.Linear(hidden, self.classes(d) + (4 if self.has_plane(d) else 0))) for d in depths})
@@ -65,6 +94,9 @@ class OctreeDecoder(nn.Module):
     def predict(self, depth: int, x: torch.Tensor, neighbors: torch.Tensor
                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         x = self.conv[str(depth)](x, neighbors)
+        if self.refine is not None:
+            for block in self.refine[str(depth)]:
+                x = block(x, neighbors)
         out = self.pred[str(depth)](x)
         k = self.classes(depth)
         plane = None
@@ -106,7 +138,7 @@ class OctreeDecoder(nn.Module):
         patch = torch.zeros((), device=outputs[0][0].device)
         for (logits, plane), d in zip(outputs, range(self.full_depth, self.depth + 1)):
             label = octree.levels[d].label
-            structure = structure + F.cross_entropy(logits, self.status_targets(d, label))
+            structure = structure + structure_loss(logits, self.status_targets(d, label), self.loss_kind)
             if plane is not None:
                 sel = self.supervised(d, label)
                 if bool(sel.any()):

@@ -1,7 +1,10 @@
-"""Train an autoencoder of paper section 5.2 on a built dataset.
+"""Train a network of the paper on a built dataset: an autoencoder (section 5.2) or shape from a
+single image (section 5.3).
 
     python -m model.train autoencoder --data DIR --depth D --arch {aocnn,ocnn-binary,ocnn-patch,
         ocnn-patch-star,psg} --out RUN [--iters N] [--batch-size B] [--lr LR] [--optimizer adam|sgd]
+    python -m model.train image --data DIR --depth D --encoder {resnet18,lenet}
+        --decoder {aocnn,psg,atlasnet} --out RUN [...]
 
 Progress bar with the loss, validation every --val-every steps, checkpoints written atomically
 to RUN/checkpoint.pt (a rerun resumes from it), metrics appended to RUN/metrics.jsonl, fixed
@@ -16,32 +19,62 @@ import sys
 
 import torch
 
-from ..networks import ARCHS
+from ..networks import ARCHS, IMAGE_DECODERS, IMAGE_ENCODERS
+from ..networks.decoder import STRUCTURE_LOSSES
 from .loop import TrainConfig, Trainer
+
+
+def common_options() -> argparse.ArgumentParser:
+    """Options every task takes."""
+    c = argparse.ArgumentParser(add_help=False)
+    c.add_argument("--data", required=True, help="dataset folder built by python -m model.data build")
+    c.add_argument("--depth", type=int, required=True, help="octree depth (must match the dataset)")
+    c.add_argument("--out", required=True, help="run folder: checkpoint, metrics, config (rerun to resume)")
+    c.add_argument("--iters", type=int, default=2000, help="training steps (default 2000)")
+    c.add_argument("--epochs", type=float, default=None, help="alternative to --iters: passes over the training split")
+    c.add_argument("--batch-size", type=int, default=8, help="shapes per step over all processes (default 8)")
+    c.add_argument("--optimizer", choices=("adam", "sgd"), default="adam",
+                   help="adam (default) or sgd with momentum 0.9 (the paper's); the rate drops 10x at 2/7, 4/7, 5/7")
+    c.add_argument("--lr", type=float, default=None, help="learning rate (default 1e-3 adam, 0.1 sgd)")
+    c.add_argument("--weight-decay", type=float, default=0.0, help="L2 weight decay (default 0; the paper: 5e-4 with SGD)")
+    c.add_argument("--val-every", type=int, default=200, help="validate every this many steps (default 200)")
+    c.add_argument("--ckpt-every", type=int, default=100, help="write RUN/checkpoint.pt every this many steps (default 100)")
+    c.add_argument("--latent", type=int, default=128, help="latent code size (default 128, the paper's)")
+    c.add_argument("--channels", type=int, default=8, help="octree channels at the max depth, doubling upward to 64 (default 8)")
+    c.add_argument("--structure-loss", choices=STRUCTURE_LOSSES, default="balanced",
+                   help="octree status loss per depth: balanced (default; each class weighted by its inverse "
+                        "frequency), ce (the paper's cross-entropy) or focal")
+    c.add_argument("--pred-hidden", type=int, default=32, help="prediction module width (default 32; the paper: 8)")
+    c.add_argument("--decoder-blocks", type=int, default=1,
+                   help="octree decoder convolutions per depth (default 1, the paper's)")
+    c.add_argument("--categories", nargs="+", default=None, help="train on these categories only (default all)")
+    c.add_argument("--seed", type=int, default=0, help="seed of weights, batch order and augmentation (default 0)")
+    c.add_argument("--threads", type=int, default=None, help="torch threads per process (default: torch's)")
+    c.add_argument("--limit", type=int, default=None, help="use at most this many shapes per split (default all)")
+    c.add_argument("--quiet", action="store_true", help="no progress bar")
+    return c
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="python -m model.train", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="task", required=True)
-    a = sub.add_parser("autoencoder", help="train a 3D autoencoder")
-    a.add_argument("--data", required=True, help="dataset folder built by python -m model.data build")
-    a.add_argument("--depth", type=int, required=True, help="octree depth (must match the dataset)")
-    a.add_argument("--arch", choices=sorted(ARCHS), default="aocnn")
-    a.add_argument("--out", required=True, help="run folder: checkpoint, metrics, config")
-    a.add_argument("--iters", type=int, default=2000, help="training steps")
-    a.add_argument("--epochs", type=float, default=None, help="alternative to --iters: passes over the training split")
-    a.add_argument("--batch-size", type=int, default=8, help="shapes per step (over all processes)")
-    a.add_argument("--optimizer", choices=("adam", "sgd"), default="adam")
-    a.add_argument("--lr", type=float, default=None, help="learning rate (default 1e-3 adam, 0.1 sgd)")
-    a.add_argument("--weight-decay", type=float, default=0.0, help="(the paper used 5e-4 with SGD)")
-    a.add_argument("--val-every", type=int, default=200)
-    a.add_argument("--ckpt-every", type=int, default=100)
-    a.add_argument("--latent", type=int, default=128)
-    a.add_argument("--channels", type=int, default=8, help="channels at the max depth (doubling upward)")
-    a.add_argument("--seed", type=int, default=0)
-    a.add_argument("--threads", type=int, default=None, help="torch threads per process")
-    a.add_argument("--limit", type=int, default=None, help="use at most this many shapes per split")
-    a.add_argument("--quiet", action="store_true")
+    common = common_options()
+    a = sub.add_parser("autoencoder", parents=[common], help="train a 3D autoencoder (paper section 5.2)")
+    a.add_argument("--arch", choices=sorted(ARCHS), default="aocnn",
+                   help="aocnn (default): Adaptive O-CNN; ocnn-binary / ocnn-patch / ocnn-patch-star: the "
+                        "full-octree ablation; psg: point-set decoder")
+    i = sub.add_parser("image", parents=[common], help="train shape from a single image (paper section 5.3)")
+    i.add_argument("--encoder", choices=IMAGE_ENCODERS, default="resnet18", help="image encoder (default resnet18)")
+    i.add_argument("--encoder-width", type=int, default=None,
+                   help="encoder width: resnet18's first stage (default 32), lenet's first conv (default 20)")
+    i.add_argument("--decoder", dest="arch", choices=IMAGE_DECODERS, default="aocnn",
+                   help="aocnn (default): Adaptive O-CNN; psg: point set; atlasnet: 25 square patches")
+    i.add_argument("--image-size", type=int, default=128, help="encoder input side in pixels (default 128)")
+    i.add_argument("--background-share", type=float, default=0.5,
+                   help="share of samples composited onto a random background (default 0.5)")
+    i.add_argument("--teacher", default=None,
+                   help="an aocnn autoencoder run: regress the encoder onto its latent codes and use its "
+                        "decoder (default: train encoder and decoder end to end)")
     return ap.parse_args(argv)
 
 
@@ -49,11 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
-    cfg = TrainConfig(data=args.data, depth=args.depth, arch=args.arch, out=args.out, iters=args.iters,
-                      epochs=args.epochs, batch_size=args.batch_size, optimizer=args.optimizer,
-                      lr=args.lr, weight_decay=args.weight_decay, val_every=args.val_every,
-                      ckpt_every=args.ckpt_every, latent=args.latent, channels=args.channels,
-                      seed=args.seed, limit=args.limit, progress=not args.quiet)
+    fields = set(TrainConfig.__dataclass_fields__) - {"progress"}
+    cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in fields}, progress=not args.quiet)
     try:
         trainer = Trainer(cfg)
     except (ValueError, FileNotFoundError) as exc:

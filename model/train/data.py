@@ -23,13 +23,15 @@ class Sample:
     shape_id: str
     octree: Octree
     points: np.ndarray
+    images: np.ndarray | None = None     # (V, H, W, 4) uint8 renders, when loaded
 
 
 class RecordSet:
     """The records of one split of a dataset, held in memory (octree arrays and a point subset)."""
 
     def __init__(self, data_dir: str | Path, split: str, octree: str = "adaptive",
-                 points: int = 2048, depth: int | None = None, limit: int | None = None, seed: int = 0):
+                 points: int = 2048, depth: int | None = None, limit: int | None = None, seed: int = 0,
+                 images: bool = False, categories: tuple[str, ...] | None = None):
         data_dir = Path(data_dir)
         manifest_path = data_dir / "manifest.json"
         if not manifest_path.is_file():
@@ -37,9 +39,11 @@ class RecordSet:
         manifest = json.loads(manifest_path.read_text())
         if depth is not None and manifest["config"]["depth"] != depth:
             raise ValueError(f"the dataset was built at depth {manifest['config']['depth']}, not {depth}")
-        rows = [r for r in manifest["records"] if r["split"] == split][:limit]
+        rows = [r for r in manifest["records"] if r["split"] == split
+                and (not categories or r["category"] in categories)][:limit]
         if not rows:
-            raise ValueError(f"no records of split {split!r} in {data_dir}")
+            which = f" of categories {', '.join(categories)}" if categories else ""
+            raise ValueError(f"no records of split {split!r}{which} in {data_dir}")
         rng = np.random.default_rng(seed)
         self.samples: list[Sample] = []
         for r in rows:
@@ -51,8 +55,14 @@ class RecordSet:
             tree = octree_from_arrays(rec.arrays, prefix=f"{octree}_", neighbors=False)
             cube = tree.normalizations[0].to_cube(rec["points"])
             pick = rng.choice(len(cube), size=points, replace=len(cube) < points)
-            self.samples.append(Sample(r["category"], r["shape_id"], tree, cube[pick].astype(np.float32)))
+            views = None
+            if images:
+                views = rec["images"]
+                if views.ndim != 4 or views.shape[-1] != 4 or len(views) == 0:
+                    raise ValueError(f"{data_dir / r['path']} has no RGBA renders; rebuild with --views 24")
+            self.samples.append(Sample(r["category"], r["shape_id"], tree, cube[pick].astype(np.float32), views))
         self.depth = self.samples[0].octree.depth
+        self.latents = None        # optional per-shape target codes (a tensor), set by a task
 
     def __len__(self) -> int:
         return len(self.samples)

@@ -14,9 +14,8 @@ import torch
 from torch import distributed as dist
 
 from ..files import atomic_path
-from ..networks import ARCHS, Autoencoder
-from ..nn.tensors import OctreeTensors
 from .data import RecordSet
+from .tasks import TASKS
 
 
 @dataclass
@@ -37,15 +36,29 @@ class TrainConfig:
     ckpt_every: int = 100
     latent: int = 128
     channels: int = 8
+    structure_loss: str = "ce"
+    pred_hidden: int = 8
+    decoder_blocks: int = 1
     seed: int = 0
     limit: int | None = None
     progress: bool = True
+    task: str = "autoencoder"
+    categories: list[str] | None = None       # train on these categories only
+    encoder: str = "resnet18"                  # image task: the image encoder
+    encoder_width: int | None = None           # image task: its width (None: the encoder's default)
+    image_size: int = 128                      # image task: encoder input side
+    background_share: float = 0.5              # image task: samples composited onto a background
+    teacher: str | None = None                 # image task: regress onto this autoencoder run's latents
 
     def check(self) -> None:
         """Raise ValueError naming the first setting that cannot train."""
-        if self.arch not in ARCHS:
-            raise ValueError(f"unknown arch {self.arch!r}; choose from {', '.join(sorted(ARCHS))}")
-        for name in ("iters", "batch_size", "val_every", "ckpt_every", "latent", "channels"):
+        if self.task not in TASKS:
+            raise ValueError(f"unknown task {self.task!r}; choose from {', '.join(TASKS)}")
+        TASKS[self.task].check(self)
+        if self.encoder_width is not None and self.encoder_width < 1:
+            raise ValueError(f"--encoder-width must be at least 1, got {self.encoder_width}")
+        for name in ("iters", "batch_size", "val_every", "ckpt_every", "latent", "channels", "pred_hidden",
+                     "decoder_blocks"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
         if self.limit is not None and self.limit < 1:
@@ -76,8 +89,18 @@ def load_checkpoint(path: Path) -> dict:
     return state
 
 
-def build_model(cfg: TrainConfig) -> Autoencoder:
-    return Autoencoder(cfg.arch, cfg.depth, latent=cfg.latent, base_channels=cfg.channels)
+LEGACY_DEFAULTS = {"structure_loss": "ce", "pred_hidden": 8, "decoder_blocks": 1, "task": "autoencoder"}
+"""Settings of runs saved before the setting existed (the paper's values)."""
+
+
+def config_from_dict(saved: dict) -> TrainConfig:
+    """The TrainConfig of a saved run, older runs' missing settings filled with what they used."""
+    known = TrainConfig.__dataclass_fields__
+    return TrainConfig(**{**LEGACY_DEFAULTS, **{k: v for k, v in saved.items() if k in known}})
+
+
+def build_model(cfg: TrainConfig) -> torch.nn.Module:
+    return TASKS[cfg.task].build_model(cfg)
 
 
 class Trainer:
@@ -92,11 +115,14 @@ class Trainer:
             dist.init_process_group("gloo")
         if cfg.batch_size % self.world:
             raise ValueError(f"--batch-size {cfg.batch_size} must be a multiple of the {self.world} processes")
-        kind = ARCHS[cfg.arch].octree
-        self.train_set = RecordSet(cfg.data, "train", kind, depth=cfg.depth, limit=cfg.limit, seed=cfg.seed)
+        self.task = TASKS[cfg.task]
+        self.train_set = self.task.dataset(cfg, "train", cfg.seed, limit=cfg.limit)
+        self.val_set: RecordSet | None
         try:
-            self.val_set = RecordSet(cfg.data, "val", kind, depth=cfg.depth, limit=cfg.limit, seed=cfg.seed + 1)
-        except ValueError:
+            self.val_set = self.task.dataset(cfg, "val", cfg.seed + 1, limit=cfg.limit)
+        except ValueError as exc:
+            if not str(exc).startswith("no records"):
+                raise
             self.val_set = None
         if cfg.epochs is not None:
             cfg.iters = max(1, math.ceil(cfg.epochs * len(self.train_set) / cfg.batch_size))
@@ -132,8 +158,10 @@ class Trainer:
                 (self.out / "config.json").write_text(json.dumps(asdict(self.cfg), indent=1) + "\n")
             return
         state = load_checkpoint(self.ckpt_path)
-        saved = state["config"]
-        for key in ("arch", "depth", "latent", "channels", "batch_size", "seed"):
+        saved = asdict(config_from_dict(state["config"]))
+        for key in ("task", "arch", "depth", "latent", "channels", "batch_size", "seed", "structure_loss",
+                    "pred_hidden", "decoder_blocks", "encoder", "encoder_width", "image_size", "categories",
+                    "teacher"):
             if saved[key] != getattr(self.cfg, key):
                 raise ValueError(f"{self.ckpt_path} was trained with {key}={saved[key]!r}, not "
                                  f"{getattr(self.cfg, key)!r}; use another --out")
@@ -164,14 +192,15 @@ class Trainer:
         chosen = order[k * self.cfg.batch_size:(k + 1) * self.cfg.batch_size]
         return chosen[self.rank::self.world]
 
-    def losses(self, dataset: RecordSet, indices) -> dict[str, torch.Tensor]:
-        octree, points = dataset.batch(indices)
-        return self.net(OctreeTensors.from_octree(octree), torch.from_numpy(points))
+    def losses(self, dataset: RecordSet, indices, rng: np.random.Generator | None = None) -> dict[str, torch.Tensor]:
+        """The model's losses on shapes ``indices`` (random augmentation drawn from ``rng``)."""
+        return self.net(*self.task.inputs(self.cfg, dataset, indices, rng))
 
     # -- the loop ---------------------------------------------------------------------------------
     def train_step(self) -> dict[str, float]:
         self.model.train()
-        loss = self.losses(self.train_set, self.batch_indices(self.step))
+        rng = np.random.default_rng([self.cfg.seed, self.step, 1])   # augmentation: a function of (seed, step)
+        loss = self.losses(self.train_set, self.batch_indices(self.step), rng)
         self.opt.zero_grad(set_to_none=True)
         loss["total"].backward()
         self.opt.step()
@@ -181,16 +210,21 @@ class Trainer:
 
     @torch.no_grad()
     def validate(self) -> dict[str, float]:
-        """Mean losses over the validation split (teacher forcing, batch statistics frozen)."""
+        """Mean losses over the validation split (teacher forcing, batch statistics frozen).
+
+        Runs on a forked, fixed-seed torch RNG: decoders that sample (AtlasNet's uv points) give
+        the same validation loss every time and leave the training's random stream untouched, so
+        a resumed run matches an uninterrupted one whether or not it validated in between."""
         self.model.eval()
         sums: dict[str, float] = {}
         n = len(self.val_set)
-        for s in range(0, n, self.cfg.batch_size):
-            idx = np.arange(s, min(n, s + self.cfg.batch_size))
-            octree, points = self.val_set.batch(idx)
-            out = self.model(OctreeTensors.from_octree(octree), torch.from_numpy(points))
-            for k, v in out.items():
-                sums[k] = sums.get(k, 0.0) + float(v) * len(idx)
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(self.cfg.seed)
+            for s in range(0, n, self.cfg.batch_size):
+                idx = np.arange(s, min(n, s + self.cfg.batch_size))
+                out = self.model(*self.task.inputs(self.cfg, self.val_set, idx, None))
+                for k, v in out.items():
+                    sums[k] = sums.get(k, 0.0) + float(v) * len(idx)
         return {k: v / n for k, v in sums.items()}
 
     def log(self, row: dict) -> None:
@@ -198,14 +232,17 @@ class Trainer:
             with open(self.out / "metrics.jsonl", "a") as fh:
                 fh.write(json.dumps(row) + "\n")
 
-    def run(self) -> None:
+    def run(self) -> dict:
+        """Train to ``cfg.iters`` steps; returns (and on rank 0 prints) a one-line summary."""
         from tqdm import tqdm
 
-        bar = tqdm(total=self.cfg.iters, initial=self.step, desc=self.cfg.arch, unit="step",
+        bar = tqdm(total=self.cfg.iters, initial=self.step, desc=f"{self.cfg.task} {self.cfg.arch}", unit="step",
                    disable=not self.cfg.progress or self.rank != 0)
-        t0 = time.time()
+        t0, start = time.time(), self.step
+        summary: dict = {"run": str(self.out), "steps": self.cfg.iters}
         while self.step < self.cfg.iters:
             losses = self.train_step()
+            summary["train"] = losses
             bar.update()
             bar.set_postfix(loss=f"{losses['total']:.4f}")
             if self.step % 10 == 0 or self.step == self.cfg.iters:
@@ -213,7 +250,24 @@ class Trainer:
                           "seconds": time.time() - t0, **losses})
             due = self.step % self.cfg.val_every == 0 or self.step == self.cfg.iters
             if self.val_set is not None and due and self.rank == 0:   # one process validates
-                self.log({"step": self.step, "split": "val", **self.validate()})
+                summary["val"] = self.validate()
+                self.log({"step": self.step, "split": "val", **summary["val"]})
             if self.step % self.cfg.ckpt_every == 0 or self.step == self.cfg.iters:
                 self.save()
         bar.close()
+        summary["seconds"] = time.time() - t0
+        if self.rank == 0:
+            print(summary_line(summary, self.step - start, self.ckpt_path), flush=True)
+        return summary
+
+
+def summary_line(summary: dict, trained: int, ckpt: Path) -> str:
+    """One line for the end of a run: what was trained, how long, the last losses."""
+    if trained == 0:
+        return f"{summary['run']}: already trained to step {summary['steps']} ({ckpt})"
+    text = f"{summary['run']}: trained {trained} steps to step {summary['steps']} in {summary['seconds']:.0f} s"
+    if "train" in summary:
+        text += f", last train loss {summary['train']['total']:.4f}"
+    if "val" in summary:
+        text += f", validation loss {summary['val']['total']:.4f}"
+    return text + f"; checkpoint {ckpt}"

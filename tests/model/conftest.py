@@ -4,7 +4,7 @@ import pytest
 
 from model.data.dataset import BuildConfig, build_dataset, procedural_tasks
 
-TINY = BuildConfig(depth=5, views=1, render_size=16, partial_scans=0, scan_resolution=64)
+TINY = BuildConfig(depth=5, views=3, render_size=32, partial_scans=0, scan_resolution=64)
 
 
 @pytest.fixture(scope="session")

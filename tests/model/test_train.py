@@ -84,7 +84,7 @@ def test_train_and_evaluate_commands_end_to_end(tiny_data, tmp_path):
     run = tmp_path / "run"
     cmd = [sys.executable, "-m", "model.train", "autoencoder", "--data", str(tiny_data), "--depth", "5",
            "--arch", "aocnn", "--out", str(run), "--iters", "6", "--batch-size", "4", "--channels", "4",
-           "--latent", "32", "--quiet"]
+           "--latent", "32", "--structure-loss", "ce", "--pred-hidden", "8", "--quiet"]
     assert subprocess.run(cmd, cwd=REPO, timeout=300).returncode == 0
     out = tmp_path / "results.json"
     proc = subprocess.run([sys.executable, "-m", "model.evaluate", str(run), "--data", str(tiny_data),
@@ -171,3 +171,72 @@ def test_damaged_checkpoint_run_folder_and_record_give_one_line_errors(tiny_data
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "damaged" in err[0] and victim.name in err[0]
     assert not (tmp_path / "e.json").exists()
+
+
+@pytest.mark.parametrize("decoder", ["aocnn", "psg", "atlasnet"])
+def test_image_training_resumes_and_evaluates_to_a_well_formed_table(tiny_data, tmp_path, decoder):
+    """A few steps of shape-from-an-image, killed and resumed to the same weights, then evaluated
+    with and without ICP; the results table reads the output."""
+    from model.evaluate import main as evaluate_main
+    from model.results_table import main as table_main
+
+    kw = dict(task="image", arch=decoder, encoder="lenet", encoder_width=4, image_size=32, iters=6,
+              ckpt_every=3, val_every=3)
+    straight = Trainer(config(tiny_data, tmp_path / "a", **kw))
+    summary = straight.run()
+    assert summary["steps"] == 6 and np.isfinite(summary["val"]["total"])
+    half = Trainer(config(tiny_data, tmp_path / "b", **kw))
+    for _ in range(3):
+        half.train_step()
+    half.save()
+    resumed = Trainer(config(tiny_data, tmp_path / "b", **kw))
+    assert resumed.step == 3
+    resumed.run()
+    a, b = straight.model.state_dict(), resumed.model.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+    out = tmp_path / "res.json"
+    assert evaluate_main([str(tmp_path / "a"), "--data", str(tiny_data), "--split", "train", "--limit", "4",
+                          "--resolution", "32", "--icp", "--out", str(out)]) == 0
+    res = json.loads(out.read_text(), parse_constant=lambda c: pytest.fail(f"bare {c} in the JSON"))
+    assert res["task"] == "image" and res["shapes"] == 4
+    valued = [r for r in res["per_shape"] if r["chamfer_x1e3"] is not None]
+    assert len(valued) + res["empty_outputs"] == 4       # 6 steps may decode nothing: counted, not inf
+    for r in valued:
+        assert 0 < r["chamfer_icp_x1e3"] <= r["chamfer_x1e3"]
+    assert table_main([str(out), str(out), "--icp", "--bootstrap", "100"]) == (0 if valued else 2)
+
+
+def test_image_augmentation_is_a_function_of_seed_and_step(tiny_data, tmp_path):
+    t = Trainer(config(tiny_data, tmp_path / "a", task="image", arch="psg", encoder="lenet", encoder_width=4,
+                       image_size=32))
+    idx = t.batch_indices(0)
+    x1 = t.task.inputs(t.cfg, t.train_set, idx, np.random.default_rng([0, 0, 1]))[0]
+    x2 = t.task.inputs(t.cfg, t.train_set, idx, np.random.default_rng([0, 0, 1]))[0]
+    x3 = t.task.inputs(t.cfg, t.train_set, idx, np.random.default_rng([0, 1, 1]))[0]
+    fixed = t.task.inputs(t.cfg, t.train_set, idx, None)[0]
+    assert torch.equal(x1, x2) and not torch.equal(x1, x3)
+    assert torch.equal(fixed, t.task.inputs(t.cfg, t.train_set, idx, None)[0])
+    assert x1.shape == (len(idx), 3, 32, 32)
+
+
+def test_image_encoder_regressed_onto_an_autoencoders_latents_uses_its_decoder(tiny_data, tmp_path):
+    teacher = Trainer(config(tiny_data, tmp_path / "ae", iters=3))
+    teacher.run()
+    kw = dict(task="image", arch="aocnn", encoder="lenet", encoder_width=4, image_size=32, iters=4,
+              teacher=str(tmp_path / "ae"))
+    student = Trainer(config(tiny_data, tmp_path / "img", **kw))
+    first = student.validate()["latent"]
+    student.run()
+    assert set(student.validate()) == {"latent", "total"} and student.validate()["latent"] < first
+    dec_s, dec_t = student.model.decoder.state_dict(), teacher.model.decoder.state_dict()
+    assert all(torch.equal(dec_s[k], dec_t[k]) for k in dec_t)          # frozen: still the teacher's
+    # the targets are the teacher encoder's codes of each shape
+    idx = np.arange(2)
+    from model.nn.tensors import OctreeTensors
+    octree, _ = student.train_set.batch(idx)
+    with torch.no_grad():
+        want = teacher.model.eval().encoder(OctreeTensors.from_octree(octree))
+    assert torch.allclose(student.train_set.latents[:2], want, atol=1e-5)
+    with pytest.raises(ValueError, match="channels"):
+        Trainer(config(tiny_data, tmp_path / "bad", **{**kw, "channels": 8}))

@@ -1,0 +1,122 @@
+"""Produce a shipped model from scratch with one resumable command: data, training, evaluation,
+and the checkpoint + provenance JSON under ``models/checkpoints/``.
+
+    python -m model.release image --workdir DIR [--out models/checkpoints/image-to-shape]
+
+Every step resumes: the dataset build skips finished records, training resumes from its
+checkpoint, so rerunning the same command after an interruption continues where it stopped.
+The recipe (dataset settings, training settings, seed) is fixed per model in :data:`RECIPES`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import shlex
+import sys
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from .files import write_atomic
+
+CHECKPOINT_FORMAT = 1
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """How one shipped model is made: the dataset build and training arguments (CLI form)."""
+
+    task: str
+    build: list[str]
+    train: list[str]
+    evaluate: list[str] = field(default_factory=list)
+
+
+RECIPES: dict[str, Recipe] = {
+    "image": Recipe(
+        task="image-to-shape",
+        build=["--per-category", "100", "--depth", "6", "--seed", "0"],
+        train=["image", "--depth", "6", "--encoder", "resnet18", "--decoder", "aocnn", "--iters", "4000",
+               "--batch-size", "8", "--val-every", "500", "--ckpt-every", "100", "--seed", "0",
+               "--structure-loss", "balanced", "--pred-hidden", "32"],
+        evaluate=["--split", "test", "--icp"]),
+}
+
+
+def sha256_file(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def package(run: Path, data: Path, results: dict, out: Path, recipe: Recipe, command: list[str]) -> dict:
+    """Write ``out/model.pt`` (the plain state_dict) and ``out/model.json`` (provenance)."""
+    import torch
+
+    from .train.loop import load_checkpoint
+
+    state = load_checkpoint(run / "checkpoint.pt")
+    out.mkdir(parents=True, exist_ok=True)
+    weights = out / "model.pt"
+    from .files import atomic_path
+    with atomic_path(weights) as tmp:
+        torch.save(state["model"], tmp)
+    manifest = json.loads((data / "manifest.json").read_text())
+    figures = {k: v for k, v in results.items() if k not in ("per_shape", "run")}
+    meta = {
+        "format": CHECKPOINT_FORMAT,
+        "task": recipe.task,
+        "weights": weights.name,
+        "weights_sha256": sha256_file(weights),
+        "parameters": int(sum(v.numel() for v in state["model"].values() if v.is_floating_point())),
+        "config": {k: v for k, v in state["config"].items() if k not in ("data", "out", "progress")},
+        "steps": state["step"],
+        "command": "python -m model.release " + " ".join(shlex.quote(c) for c in command),
+        "train_command": "python -m model.train " + " ".join(shlex.quote(c) for c in recipe.train),
+        "data": {"build": manifest["config"], "source": "procedural",
+                 "build_command": "python -m model.data build " + " ".join(recipe.build),
+                 "splits": manifest.get("splits"),
+                 "manifest_sha256": sha256_file(data / "manifest.json")},
+        "evaluation": figures,
+    }
+    write_atomic(out / "model.json", (json.dumps(meta, indent=1, allow_nan=False) + "\n").encode())
+    return meta
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m model.release", description=__doc__.splitlines()[0])
+    ap.add_argument("model", choices=sorted(RECIPES), help="which shipped model to make")
+    ap.add_argument("--workdir", required=True, help="folder for the dataset, the run and its evaluation")
+    ap.add_argument("--out", default=None, help="where model.pt and model.json go "
+                    "(default models/checkpoints/<task>)")
+    ap.add_argument("--workers", type=int, default=1, help="dataset build processes (default 1)")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads for training (default 1)")
+    args = ap.parse_args(argv)
+    recipe = RECIPES[args.model]
+    work = Path(args.workdir)
+    data, run, results_path = work / "data", work / "run", work / "test.json"
+    out = Path(args.out or Path("models") / "checkpoints" / recipe.task)
+    from .data.__main__ import main as build_main
+    from .evaluate import main as evaluate_main
+    from .train.__main__ import main as train_main
+
+    steps = [
+        (build_main, ["build", "--out", str(data), "--workers", str(args.workers), "--quiet", *recipe.build]),
+        (train_main, [*recipe.train, "--data", str(data), "--out", str(run), "--threads", str(args.threads)]),
+        (evaluate_main, [str(run), "--data", str(data), "--out", str(results_path), *recipe.evaluate]),
+    ]
+    for fn, fn_args in steps:
+        code = fn(fn_args)
+        if code:
+            return code
+    meta = package(run, data, json.loads(results_path.read_text()), out, recipe, sys.argv[1:] if argv is None else argv)
+    print(f"{out}: {meta['task']}, {meta['parameters']:,} parameters, test Chamfer x1e3 "
+          f"{meta['evaluation']['chamfer_x1e3_category_mean']:.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

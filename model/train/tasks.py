@@ -1,0 +1,147 @@
+"""Training tasks as plug-ins of the one training loop: what a task reads, builds and feeds.
+
+A task gives the loop its datasets, its model (whose ``forward`` returns the loss dictionary) and
+the model inputs of a batch; the loop (:mod:`model.train.loop`) does the rest.  Evaluation asks
+the same task for the latent codes of a batch.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..networks import ARCHS, IMAGE_DECODERS, IMAGE_ENCODERS, Autoencoder, ImageToShape
+from ..networks.decoder import STRUCTURE_LOSSES
+from ..nn.tensors import OctreeTensors
+from ..preprocess import ImageSpec
+from .data import RecordSet
+from .images import image_batch
+
+if TYPE_CHECKING:
+    from .loop import TrainConfig
+
+
+class Task(Protocol):
+    name: str
+
+    def check(self, cfg: TrainConfig) -> None:
+        """Raise ValueError naming the first setting this task cannot train with."""
+
+    def dataset(self, cfg: TrainConfig, split: str, seed: int, points: int = 2048,
+                limit: int | None = None) -> RecordSet: ...
+
+    def build_model(self, cfg: TrainConfig) -> nn.Module: ...
+
+    def inputs(self, cfg: TrainConfig, dataset: RecordSet, indices, rng: np.random.Generator | None) -> tuple:
+        """The model's forward arguments for a batch (random augmentation with ``rng``)."""
+
+    def encode(self, model: nn.Module, cfg: TrainConfig, dataset: RecordSet, indices) -> torch.Tensor:
+        """Latent codes of shapes ``indices`` without augmentation (evaluation)."""
+
+
+def _check_structure(cfg: TrainConfig) -> None:
+    if cfg.structure_loss not in STRUCTURE_LOSSES:
+        raise ValueError(f"--structure-loss must be one of {', '.join(STRUCTURE_LOSSES)}")
+
+
+class AutoencoderTask:
+    """Paper section 5.2: an octree in, the same shape out (``cfg.arch`` of :data:`ARCHS`)."""
+
+    name = "autoencoder"
+
+    def check(self, cfg: TrainConfig) -> None:
+        if cfg.arch not in ARCHS:
+            raise ValueError(f"unknown arch {cfg.arch!r}; choose from {', '.join(sorted(ARCHS))}")
+        _check_structure(cfg)
+
+    def dataset(self, cfg, split, seed, points=2048, limit=None):
+        return RecordSet(cfg.data, split, ARCHS[cfg.arch].octree, points=points, depth=cfg.depth,
+                         limit=limit, seed=seed, categories=cfg.categories)
+
+    def build_model(self, cfg):
+        return Autoencoder(cfg.arch, cfg.depth, latent=cfg.latent, base_channels=cfg.channels,
+                           hidden=cfg.pred_hidden, structure_loss=cfg.structure_loss,
+                           decoder_blocks=cfg.decoder_blocks)
+
+    def inputs(self, cfg, dataset, indices, rng):
+        octree, points = dataset.batch(indices)
+        return OctreeTensors.from_octree(octree), torch.from_numpy(points)
+
+    def encode(self, model, cfg, dataset, indices):
+        return model.encoder(self.inputs(cfg, dataset, indices, None)[0])
+
+
+class ImageTask:
+    """Paper section 5.3: a render in, the shape out (``cfg.encoder`` + ``cfg.arch`` as decoder)."""
+
+    name = "image"
+
+    def check(self, cfg: TrainConfig) -> None:
+        if cfg.arch not in IMAGE_DECODERS:
+            raise ValueError(f"unknown decoder {cfg.arch!r}; choose from {', '.join(IMAGE_DECODERS)}")
+        if cfg.encoder not in IMAGE_ENCODERS:
+            raise ValueError(f"unknown encoder {cfg.encoder!r}; choose from {', '.join(IMAGE_ENCODERS)}")
+        if not 32 <= cfg.image_size <= 512:
+            raise ValueError(f"--image-size must be in 32..512, got {cfg.image_size}")
+        if not 0 <= cfg.background_share <= 1:
+            raise ValueError(f"--background-share must be in [0, 1], got {cfg.background_share}")
+        if cfg.teacher is not None:
+            teacher = self._teacher(cfg)[1]
+            if cfg.arch != "aocnn" or teacher.arch != "aocnn":
+                raise ValueError("--teacher needs --decoder aocnn and an aocnn autoencoder run")
+            for key in ("depth", "latent", "channels", "pred_hidden", "decoder_blocks"):
+                if getattr(teacher, key) != getattr(cfg, key):
+                    raise ValueError(f"--teacher was trained with {key}={getattr(teacher, key)!r}, "
+                                     f"not {getattr(cfg, key)!r}: pass the same setting")
+        _check_structure(cfg)
+
+    @staticmethod
+    def _teacher(cfg):
+        from ..evaluate import load_run
+        return load_run(cfg.teacher)
+
+    def spec(self, cfg) -> ImageSpec:
+        return ImageSpec(size=cfg.image_size)
+
+    def dataset(self, cfg, split, seed, points=2048, limit=None):
+        data = RecordSet(cfg.data, split, "adaptive", points=points, depth=cfg.depth, limit=limit,
+                         seed=seed, images=True, categories=cfg.categories)
+        if cfg.teacher is not None:            # the teacher's codes of every shape, computed once
+            model = self._teacher(cfg)[0]
+            codes = []
+            with torch.no_grad():
+                for s in range(0, len(data), 16):
+                    octree, _ = data.batch(np.arange(s, min(len(data), s + 16)))
+                    codes.append(model.encoder(OctreeTensors.from_octree(octree)))
+            data.latents = torch.cat(codes)
+        return data
+
+    def build_model(self, cfg):
+        model = ImageToShape(cfg.encoder, cfg.arch, cfg.depth, latent=cfg.latent, base_channels=cfg.channels,
+                             encoder_width=cfg.encoder_width, hidden=cfg.pred_hidden,
+                             structure_loss=cfg.structure_loss, decoder_blocks=cfg.decoder_blocks)
+        if cfg.teacher is not None:
+            model.adopt_decoder(self._teacher(cfg)[0].decoder)
+        return model
+
+    def inputs(self, cfg, dataset, indices, rng):
+        samples = [dataset.samples[i] for i in indices]
+        images = image_batch(samples, self.spec(cfg), rng, cfg.background_share, dataset.samples)
+        if cfg.teacher is not None:
+            return torch.from_numpy(images), None, None, dataset.latents[torch.as_tensor(np.asarray(indices))]
+        if cfg.arch == "aocnn":
+            octree, points = dataset.batch(indices)
+            octree_t = OctreeTensors.from_octree(octree)
+        else:               # point decoders need no octree
+            octree_t, points = None, np.stack([s.points for s in samples])
+        return torch.from_numpy(images), octree_t, torch.from_numpy(points)
+
+    def encode(self, model, cfg, dataset, indices):
+        samples = [dataset.samples[i] for i in indices]
+        return model.encoder(torch.from_numpy(image_batch(samples, self.spec(cfg), None)))
+
+
+TASKS: dict[str, Task] = {"autoencoder": AutoencoderTask(), "image": ImageTask()}

@@ -1,0 +1,64 @@
+"""Every command-line option says what it does and, when it has one, its default."""
+
+import argparse
+
+import pytest
+
+
+class Captured(Exception):
+    def __init__(self, parser):
+        self.parser = parser
+
+
+def parser_of(main, argv):
+    """The ArgumentParser a CLI's main builds (caught at parse time)."""
+    original = argparse.ArgumentParser.parse_args
+
+    def capture(self, *a, **k):
+        raise Captured(self)
+
+    argparse.ArgumentParser.parse_args = capture
+    try:
+        main(argv)
+    except Captured as c:
+        return c.parser
+    finally:
+        argparse.ArgumentParser.parse_args = original
+    raise AssertionError("no parser was built")
+
+
+def undocumented(parser, prefix=""):
+    bad = []
+    for action in parser._actions:
+        if isinstance(action, argparse._HelpAction):
+            continue
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                bad += undocumented(sub, f"{prefix}{name} ")
+            continue
+        name = prefix + (action.option_strings[-1] if action.option_strings else action.dest)
+        text = (action.help or "").lower()
+        if not text.strip():
+            bad.append(f"{name}: no description")
+        elif (action.option_strings and not action.required and action.default not in (None, False)
+              and "default" not in text and str(action.default) not in text):
+            bad.append(f"{name}: default {action.default!r} not stated")
+    return bad
+
+
+def _mains():
+    from model.data.__main__ import main as data_main
+    from model.evaluate import main as evaluate_main
+    from model.figures import main as figures_main
+    from model.octree.__main__ import main as octree_main
+    from model.release import main as release_main
+    from model.results_table import main as table_main
+    from model.train.__main__ import main as train_main
+    return {"model.train": train_main, "model.evaluate": evaluate_main, "model.data": data_main,
+            "model.octree": octree_main, "model.results_table": table_main, "model.figures": figures_main,
+            "model.release": release_main}
+
+
+@pytest.mark.parametrize("name", sorted(_mains()))
+def test_every_option_has_a_description_and_states_its_default(name):
+    assert undocumented(parser_of(_mains()[name], [])) == []

@@ -1,0 +1,119 @@
+"""The shared image preprocessing: every kind of image Pillow reads, the crop, and clear errors."""
+
+import io
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from model.preprocess import ImageError, ImageSpec, decode_image, load_and_prepare, object_box, prepare_image
+
+SPEC = ImageSpec(size=32)
+
+
+def encode(img: Image.Image, fmt: str = "PNG", **kw) -> bytes:
+    buf = io.BytesIO()
+    img.save(buf, fmt, **kw)
+    return buf.getvalue()
+
+
+def scene(h=60, w=90, box=(10, 20, 40, 50), colour=(200, 30, 30), alpha=True) -> np.ndarray:
+    """A red rectangle on transparent (or white) ground."""
+    a = np.zeros((h, w, 4), np.uint8)
+    a[..., :3] = 255
+    a[..., 3] = 0 if alpha else 255
+    t, l, b, r = box
+    a[t:b, l:r, :3] = colour
+    a[t:b, l:r, 3] = 255
+    return a
+
+
+def test_crop_to_the_object_pads_to_square_and_normalises():
+    x = prepare_image(scene(), SPEC)
+    assert x.shape == (3, 32, 32) and x.dtype == np.float32
+    red = x[0] * SPEC.std[0] + SPEC.mean[0]
+    # the object is 30 x 30: it fills the square but the margin (5% per side) stays background
+    assert red[16, 16] == pytest.approx(200 / 255, abs=0.02)
+    assert red[0, 0] == pytest.approx(1.0, abs=0.02)
+    inside = (x[1] * SPEC.std[1] + SPEC.mean[1]) < 0.5        # green low = the red object
+    rows = np.flatnonzero(inside.any(1))
+    assert 0 < rows[0] <= 3 and 28 <= rows[-1] < 31
+
+
+def test_the_same_object_gives_the_same_tensor_wherever_it_sits_and_whatever_the_ground():
+    a = prepare_image(scene(box=(10, 20, 40, 50)), SPEC)
+    b = prepare_image(scene(h=120, w=80, box=(70, 5, 100, 35)), SPEC)
+    c = prepare_image(scene(alpha=False), SPEC)                # opaque: cropped by the border colour
+    assert np.abs(a - b).max() < 1e-5
+    assert np.abs(a - c).max() < 1e-5
+
+
+@pytest.mark.parametrize("mode", ["RGB", "RGBA", "L", "LA", "P", "CMYK", "I;16", "I", "F", "1"])
+def test_every_pillow_mode_decodes_to_rgba(mode):
+    rgb = Image.fromarray(scene(alpha=False)[..., :3])
+    if mode == "I;16":
+        img = Image.fromarray(np.asarray(rgb.convert("L"), np.uint16) * 257)
+    else:
+        img = rgb.convert(mode)
+    fmt = "TIFF" if mode in ("CMYK", "I", "F", "I;16") else "PNG"
+    rgba = decode_image(encode(img, fmt))
+    assert rgba.shape == (60, 90, 4) and rgba.dtype == np.uint8
+    assert object_box(rgba) == (10, 20, 40, 50)
+    assert prepare_image(rgba, SPEC).shape == (3, 32, 32)
+
+
+def test_sixteen_bit_png_is_scaled_not_clipped():
+    g = np.full((8, 8), 40000, np.uint16)
+    rgba = decode_image(encode(Image.fromarray(g)))
+    assert abs(int(rgba[0, 0, 0]) - round(40000 / 65535 * 255)) <= 1
+
+
+def test_palette_transparency_jpeg_webp_and_gif_first_frame():
+    p = Image.fromarray(scene()).convert("RGBA").quantize(8)
+    frames = [Image.fromarray(scene(box=(0, 0, 10, 10), alpha=False)[..., :3]),
+              Image.fromarray(scene(alpha=False)[..., :3])]
+    gif = io.BytesIO()
+    frames[0].save(gif, "GIF", save_all=True, append_images=frames[1:])
+    for data in (encode(p), encode(Image.fromarray(scene(alpha=False)[..., :3]), "JPEG", quality=95),
+                 encode(Image.fromarray(scene()), "WEBP", lossless=True)):
+        box = object_box(decode_image(data))
+        assert box is not None and abs(box[0] - 10) <= 1 and abs(box[3] - 50) <= 1
+    assert object_box(decode_image(gif.getvalue())) == (0, 0, 10, 10)
+
+
+def test_exif_rotation_is_applied():
+    img = Image.fromarray(scene(alpha=False)[..., :3])           # 60 x 90, landscape
+    exif = Image.Exif()
+    exif[0x0112] = 6                                             # rotate 90 degrees clockwise to view
+    rgba = decode_image(encode(img, "JPEG", exif=exif.tobytes()))
+    assert rgba.shape[:2] == (90, 60)
+
+
+def test_tiny_flat_and_transparent_images():
+    one = decode_image(encode(Image.new("RGB", (1, 1), (10, 200, 10))))
+    assert prepare_image(one, SPEC).shape == (3, 32, 32)              # a 1x1 image: the whole image
+    flat = np.full((20, 30, 3), 128, np.uint8)
+    assert object_box(np.dstack([flat, np.full((20, 30), 255, np.uint8)])) is None
+    assert prepare_image(flat, SPEC).shape == (3, 32, 32)             # nothing stands out: whole image
+    with pytest.raises(ImageError, match="fully transparent"):
+        prepare_image(np.zeros((10, 10, 4), np.uint8), SPEC)
+
+
+def test_not_an_image_truncated_and_bombs_are_clear_errors(tmp_path):
+    with pytest.raises(ImageError, match="not an image"):
+        decode_image(b"")
+    with pytest.raises(ImageError, match="not an image"):
+        decode_image(b"ply\nformat ascii 1.0\n")
+    data = encode(Image.fromarray(scene()[..., :3]), "PNG")
+    with pytest.raises(ImageError, match="truncated or corrupt"):
+        decode_image(data[: len(data) // 2])
+    big = encode(Image.new("L", (5000, 5000)), "PNG")                 # 25 MP, compresses to ~25 kB
+    with pytest.raises(ImageError, match="more than the limit"):
+        decode_image(big, max_pixels=10_000_000)
+    with pytest.raises(ImageError, match="cannot read"):
+        decode_image(tmp_path / "missing.png")
+    with pytest.raises(ImageError, match="expected an"):
+        prepare_image(np.zeros((4, 4), np.uint8), SPEC)
+    ok = tmp_path / "ok.png"
+    ok.write_bytes(data)
+    assert load_and_prepare(ok, SPEC).shape == (3, 32, 32)
