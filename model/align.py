@@ -36,17 +36,24 @@ def rigid_fit(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def icp(source: np.ndarray, target: np.ndarray, iterations: int = 50, tolerance: float = 1e-7,
-        trim: float = 1.0) -> Alignment:
+        trim: float = 1.0, max_points: int = 5000, seed: int = 0) -> Alignment:
     """Align ``source`` (N, 3) to ``target`` (M, 3) by point-to-point ICP from the identity.
 
     Each iteration pairs every source point with its nearest target point (the ``trim`` share of
     closest pairs is used, 1.0 = all) and solves the rigid fit; stops when the RMS changes by less
-    than ``tolerance`` (relative) or after ``iterations``.  Returns the composed transform.
+    than ``tolerance`` (relative) or after ``iterations``.  Returns the composed transform.  Sets
+    larger than ``max_points`` are fitted on a fixed random subset of that size (the transform
+    has 6 degrees of freedom; thousands of pairs pin it down), which keeps evaluation fast.
     """
     src = np.asarray(source, np.float64)
     tgt = np.asarray(target, np.float64)
     if len(src) < 3 or len(tgt) < 3:
         raise ValueError("ICP needs at least 3 points on each side")
+    rng = np.random.default_rng(seed)
+    if len(src) > max_points:
+        src = src[rng.choice(len(src), max_points, replace=False)]
+    if len(tgt) > 2 * max_points:
+        tgt = tgt[rng.choice(len(tgt), 2 * max_points, replace=False)]
     if not 0 < trim <= 1:
         raise ValueError("trim must be in (0, 1]")
     tree = cKDTree(tgt)

@@ -124,7 +124,8 @@ def prepare_image(rgba: np.ndarray, spec: ImageSpec, keep_background: bool = Fal
     Transparent pixels are composited onto ``spec.background`` (``keep_background`` keeps the
     image's own colour under them instead).  The crop is the :func:`object_box`, or the whole image
     where it finds nothing (a fully transparent image is an ImageError: there is no object); the
-    crop is padded to a square with the border colour plus ``spec.margin`` per side, resized with
+    crop is grown to a square plus ``spec.margin`` per side (taking the image's own surroundings,
+    beyond its border the background colour or, for an opaque image, its edge pixels), resized with
     a box filter (antialiasing) and normalised by ``spec.mean`` / ``spec.std``.
     """
     rgba = np.asarray(rgba)
@@ -142,25 +143,25 @@ def prepare_image(rgba: np.ndarray, spec: ImageSpec, keep_background: bool = Fal
         rgb = rgba[..., :3].astype(np.float32) * a + np.asarray(spec.background, np.float32) * (1 - a)
     h, w = rgb.shape[:2]
     top, left, bottom, right = box if box is not None else (0, 0, h, w)
-    crop = rgb[top:bottom, left:right]
-    fill = _border_colour(rgb) if keep_background or rgba[..., 3].min() >= 250 else np.asarray(spec.background, np.float32)
-    side = max(crop.shape[0], crop.shape[1])
-    pad = int(round(side * spec.margin / max(1e-6, 1 - 2 * spec.margin)))
-    full = side + 2 * pad
-    canvas = np.empty((full, full, 3), np.float32)
-    canvas[:] = fill
-    y0, x0 = (full - crop.shape[0]) // 2, (full - crop.shape[1]) // 2
-    canvas[y0:y0 + crop.shape[0], x0:x0 + crop.shape[1]] = crop
+    side = max(bottom - top, right - left)
+    full = side + 2 * int(round(side * spec.margin / max(1e-6, 1 - 2 * spec.margin)))
+    y0 = top - (full - (bottom - top)) // 2            # the square around the crop, image coordinates
+    x0 = left - (full - (right - left)) // 2
+    pads = ((max(0, -y0), max(0, y0 + full - h)), (max(0, -x0), max(0, x0 + full - w)), (0, 0))
+    if keep_background or rgba[..., 3].min() >= 250:
+        # an opaque photo: the real surroundings, the image's edges extended beyond its border
+        padded = np.pad(rgb, pads, mode="edge")
+    else:
+        padded = np.pad(rgb, pads, mode="constant")
+        padded[:pads[0][0]], padded[padded.shape[0] - pads[0][1]:] = spec.background, spec.background
+        padded[:, :pads[1][0]], padded[:, padded.shape[1] - pads[1][1]:] = spec.background, spec.background
+    y0, x0 = y0 + pads[0][0], x0 + pads[1][0]
+    canvas = padded[y0:y0 + full, x0:x0 + full]
     img = Image.fromarray(np.clip(canvas.round(), 0, 255).astype(np.uint8), "RGB")
     img = img.resize((spec.size, spec.size), Image.Resampling.BOX if full >= spec.size else Image.Resampling.BILINEAR)
     x = np.asarray(img, np.float32) / 255.0
     x = (x - np.asarray(spec.mean, np.float32)) / np.asarray(spec.std, np.float32)
     return np.ascontiguousarray(x.transpose(2, 0, 1))
-
-
-def _border_colour(rgb: np.ndarray) -> np.ndarray:
-    border = np.concatenate([rgb[0], rgb[-1], rgb[:, 0], rgb[:, -1]])
-    return np.median(border, axis=0).astype(np.float32)
 
 
 def load_and_prepare(data: bytes | str | Path, spec: ImageSpec, max_pixels: int = MAX_PIXELS_DEFAULT) -> np.ndarray:
