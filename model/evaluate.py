@@ -20,7 +20,6 @@ structure decodes with the true statuses (separating structure errors from patch
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -31,7 +30,7 @@ import torch
 
 from .align import icp
 from .decode import decode
-from .files import write_atomic
+from .files import json_text, write_atomic
 from .networks import AtlasNetDecoder, OctreeDecoder, PointSetDecoder, TorchSteps
 from .nn.tensors import OctreeTensors
 from .octree import LEAF, Octree
@@ -239,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    write_atomic(args.out, (json.dumps(results, indent=1, allow_nan=False) + "\n").encode())
+    write_atomic(args.out, json_text(results).encode())
     mean = results["chamfer_x1e3_category_mean"]
     text = f"{args.out}: {results['shapes']} shapes, Chamfer x1e3 category mean "
     text += f"{mean:.3f}" if mean is not None else "n/a"

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 import tempfile
+import json
+import math
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -48,3 +50,23 @@ def write_atomic(path: str | Path, data: bytes, fsync: bool = False) -> None:
     with atomic_path(path, fsync) as tmp:
         with open(tmp, "wb") as fh:
             fh.write(data)
+
+
+def finite(obj):
+    """``obj`` with every NaN or infinite float (NumPy scalars included) replaced by None, so it
+    serialises to strict JSON (no bare ``NaN`` / ``Infinity``, which strict parsers reject)."""
+    if isinstance(obj, dict):
+        return {k: finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite(v) for v in obj]
+    if hasattr(obj, "item") and getattr(obj, "ndim", 1) == 0:      # NumPy / torch scalars
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def json_text(obj, indent: int | None = 1) -> str:
+    """Strict JSON of ``obj`` (non-finite floats as null), newline-terminated when indented."""
+    text = json.dumps(finite(obj), indent=indent, allow_nan=False)
+    return text + "\n" if indent is not None else text

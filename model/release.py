@@ -18,7 +18,7 @@ import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from .files import write_atomic
+from .files import atomic_path, json_text, write_atomic
 
 CHECKPOINT_FORMAT = 1
 
@@ -61,7 +61,7 @@ def package(run: Path, data: Path, results: dict, out: Path, recipe: Recipe, com
     state = load_checkpoint(run / "checkpoint.pt")
     out.mkdir(parents=True, exist_ok=True)
     weights = out / "model.pt"
-    from .files import atomic_path
+
     with atomic_path(weights) as tmp:
         torch.save(state["model"], tmp)
     manifest = json.loads((data / "manifest.json").read_text())
@@ -82,7 +82,7 @@ def package(run: Path, data: Path, results: dict, out: Path, recipe: Recipe, com
                  "manifest_sha256": sha256_file(data / "manifest.json")},
         "evaluation": figures,
     }
-    write_atomic(out / "model.json", (json.dumps(meta, indent=1, allow_nan=False) + "\n").encode())
+    write_atomic(out / "model.json", json_text(meta).encode())
     return meta
 
 

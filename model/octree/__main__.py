@@ -7,14 +7,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
 
 import numpy as np
 
-from ..files import write_atomic
+from ..files import json_text, write_atomic
 from .build import DEFAULT_THRESHOLD, MAX_BUILD_DEPTH, build_octree
 from .errors import OctreeInputError
 from .inputs import load_input
@@ -89,7 +88,7 @@ def run(args: argparse.Namespace) -> dict:
                  normals_estimated=loaded.normals_estimated, patches=int(sum(stats["leaves_per_depth"])),
                  triangles=int(len(mesh.faces)))
     if args.stats:
-        write_atomic(args.stats, (json.dumps(stats, indent=2) + "\n").encode())
+        write_atomic(args.stats, json_text(stats, indent=2).encode())
     return stats
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from torch import distributed as dist
 
-from ..files import atomic_path
+from ..files import atomic_path, json_text
 from .data import RecordSet
 from .tasks import TASKS
 
@@ -230,7 +230,7 @@ class Trainer:
     def log(self, row: dict) -> None:
         if self.rank == 0:
             with open(self.out / "metrics.jsonl", "a") as fh:
-                fh.write(json.dumps(row) + "\n")
+                fh.write(json_text(row, indent=None) + "\n")
 
     def run(self) -> dict:
         """Train to ``cfg.iters`` steps; returns (and on rank 0 prints) a one-line summary."""

@@ -48,3 +48,11 @@ def test_results_table_with_empty_outputs_has_no_nan_and_no_warning(tmp_path, ca
     assert "nan" not in out.lower() and "inf" not in out.lower()
     assert "| b | +0.500 | [+0.500, +0.500] | 2 / 0 | 2 |" in out      # only the shapes both decoded
     assert "| a | 2.00 | **2.000** | 1 |" in out                        # the empty output is counted
+
+
+def test_json_outputs_are_strict_even_with_nan_and_inf():
+    from model.files import json_text
+
+    text = json_text({"loss": float("nan"), "best": np.float32(np.inf), "ok": [np.float64(1.5), 2]})
+    assert json.loads(text, parse_constant=lambda c: (_ for _ in ()).throw(ValueError(c))) == \
+        {"loss": None, "best": None, "ok": [1.5, 2]}
