@@ -1,5 +1,5 @@
-"""Produce a shipped model from scratch with one resumable command: data, training, evaluation,
-and the checkpoint + provenance JSON under ``models/checkpoints/``.
+"""Produce a shipped model from scratch with one resumable command: data, training, split
+calibration, evaluation, and the checkpoint + provenance JSON under ``models/checkpoints/``.
 
     python -m model.release image --workdir DIR [--out models/checkpoints/image-to-shape]
 
@@ -31,6 +31,7 @@ class Recipe:
     build: list[str]
     train: list[str]
     evaluate: list[str] = field(default_factory=list)
+    calibrate: bool = True          # fold the split-count calibration (model.calibrate) into the weights
 
 
 RECIPES: dict[str, Recipe] = {
@@ -74,6 +75,7 @@ def package(run: Path, data: Path, results: dict, out: Path, recipe: Recipe, com
         "parameters": int(sum(v.numel() for v in state["model"].values() if v.is_floating_point())),
         "config": {k: v for k, v in state["config"].items() if k not in ("data", "out", "progress")},
         "steps": state["step"],
+        "calibration": state.get("calibration"),
         "command": "python -m model.release " + " ".join(shlex.quote(c) for c in command),
         "train_command": "python -m model.train " + " ".join(shlex.quote(c) for c in recipe.train),
         "data": {"build": manifest["config"], "source": "procedural",
@@ -98,21 +100,26 @@ def main(argv: list[str] | None = None) -> int:
     recipe = RECIPES[args.model]
     work = Path(args.workdir)
     data, run, results_path = work / "data", work / "run", work / "test.json"
+    final = work / "run-calibrated" if recipe.calibrate else run
     out = Path(args.out or Path("models") / "checkpoints" / recipe.task)
+    from .calibrate import main as calibrate_main
     from .data.__main__ import main as build_main
     from .evaluate import main as evaluate_main
     from .train.__main__ import main as train_main
 
     steps = [
         (build_main, ["build", "--out", str(data), "--workers", str(args.workers), "--quiet", *recipe.build]),
-        (train_main, [*recipe.train, "--data", str(data), "--out", str(run), "--threads", str(args.threads)]),
-        (evaluate_main, [str(run), "--data", str(data), "--out", str(results_path), *recipe.evaluate]),
+        (train_main, [*recipe.train, "--data", str(data), "--out", str(run), "--threads", str(args.threads),
+                      "--quiet"]),
     ]
+    if recipe.calibrate:
+        steps.append((calibrate_main, [str(run), "--data", str(data), "--out", str(final)]))
+    steps.append((evaluate_main, [str(final), "--data", str(data), "--out", str(results_path), *recipe.evaluate]))
     for fn, fn_args in steps:
         code = fn(fn_args)
         if code:
             return code
-    meta = package(run, data, json.loads(results_path.read_text()), out, recipe, sys.argv[1:] if argv is None else argv)
+    meta = package(final, data, json.loads(results_path.read_text()), out, recipe, sys.argv[1:] if argv is None else argv)
     print(f"{out}: {meta['task']}, {meta['parameters']:,} parameters, test Chamfer x1e3 "
           f"{meta['evaluation']['chamfer_x1e3_category_mean']:.3f}")
     return 0

@@ -1,0 +1,46 @@
+"""Split calibration: the bias matches predicted and true split counts and lives in the weights."""
+
+import json
+
+import numpy as np
+import torch
+
+from model.calibrate import calibrate, matching_bias, split_logits
+from model.evaluate import load_run
+from model.octree import SPLIT
+from model.train.loop import TrainConfig, Trainer
+from model.train.tasks import TASKS
+
+
+def test_matching_bias_equalises_counts():
+    rng = np.random.default_rng(0)
+    labels = rng.choice(3, size=5000, p=[0.5, 0.1, 0.4])
+    logits = rng.normal(size=(5000, 3))
+    logits[:, SPLIT] += 0.8                      # over-predicts split, like a balanced loss
+    b, row = matching_bias(logits, labels)
+    assert b < 0 and abs(row["predicted_over_true"] - 1) < 0.05
+    z = logits.copy()
+    z[:, SPLIT] += b
+    assert abs((z.argmax(1) == SPLIT).sum() / (labels == SPLIT).sum() - row["predicted_over_true"]) < 1e-3
+
+
+def test_calibrated_copy_differs_only_in_split_biases_and_matches_counts(tiny_data, tmp_path):
+    cfg = TrainConfig(data=str(tiny_data), depth=5, arch="aocnn", out=str(tmp_path / "run"), iters=30,
+                      batch_size=4, latent=32, channels=4, progress=False, structure_loss="balanced",
+                      pred_hidden=16)
+    Trainer(cfg).run()
+    before = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["model"]
+    report = calibrate(str(tmp_path / "run"), str(tiny_data), str(tmp_path / "cal"), split="train")
+    after = torch.load(tmp_path / "cal" / "checkpoint.pt", weights_only=False)["model"]
+    changed = sorted(k for k in before if not torch.equal(before[k], after[k]))
+    assert set(changed) <= {f"decoder.pred.{d}.3.bias" for d in report["depths"]}
+    for d, row in report["depths"].items():
+        diff = after[f"decoder.pred.{d}.3.bias"] - before[f"decoder.pred.{d}.3.bias"]
+        assert torch.allclose(diff, torch.tensor([0.0, row["bias"], 0.0]), atol=1e-6)
+    assert json.loads((tmp_path / "cal" / "calibration.json").read_text()) == report
+    # re-measured on the calibrated model: the counts are matched as reported
+    model, cfg2 = load_run(tmp_path / "cal")
+    cfg2.data = str(tiny_data)
+    for d, (logits, labels) in split_logits(model, cfg2, TASKS["autoencoder"].dataset(cfg2, "train", 0)).items():
+        ratio = (logits.argmax(1) == SPLIT).sum() / max(1, (labels == SPLIT).sum())
+        assert abs(ratio - report["depths"][str(d)]["predicted_over_true"]) < 1e-6
