@@ -73,11 +73,14 @@ def test_a_killed_build_leaves_no_corrupt_record_and_resumes(tmp_path):
            "--render-size", "32", "--partial", "1", "--scan-resolution", "64", "--workers", "1", "--quiet"]
     proc = subprocess.Popen(cmd, cwd=REPO)
     deadline = time.time() + 120
-    while time.time() < deadline and len(list(out.glob("records/*/*.npz"))) < 2:
+    def finished():             # whole records only: tmp-* files are being written (or renamed away)
+        return sorted(p for p in out.glob("records/*/*.npz") if not p.name.startswith("tmp-"))
+
+    while time.time() < deadline and len(finished()) < 2:
         time.sleep(0.05)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    done = sorted(out.glob("records/*/*.npz"))
+    done = finished()
     assert 2 <= len(done) < 6 and not (out / "manifest.json").exists()
     for path in done:                                   # every finished file is a whole record
         assert load_record(path)["points"].ndim == 2

@@ -36,11 +36,12 @@ def test_calibrated_copy_differs_only_in_split_biases_and_matches_counts(tiny_da
     assert set(changed) <= {f"decoder.pred.{d}.3.bias" for d in report["depths"]}
     for d, row in report["depths"].items():
         diff = after[f"decoder.pred.{d}.3.bias"] - before[f"decoder.pred.{d}.3.bias"]
-        assert torch.allclose(diff, torch.tensor([0.0, row["bias"], 0.0]), atol=1e-6)
+        assert torch.allclose(diff[:3], torch.tensor([0.0, row["bias"], 0.0]), atol=1e-6)
+        assert torch.equal(diff[3:], torch.zeros_like(diff[3:]))          # plane outputs untouched
     assert json.loads((tmp_path / "cal" / "calibration.json").read_text()) == report
     # re-measured on the calibrated model: the counts are matched as reported
     model, cfg2 = load_run(tmp_path / "cal")
     cfg2.data = str(tiny_data)
     for d, (logits, labels) in split_logits(model, cfg2, TASKS["autoencoder"].dataset(cfg2, "train", 0)).items():
         ratio = (logits.argmax(1) == SPLIT).sum() / max(1, (labels == SPLIT).sum())
-        assert abs(ratio - report["depths"][str(d)]["predicted_over_true"]) < 1e-6
+        assert abs(ratio - report["depths"][str(d)]["predicted_over_true"]) < 1e-3   # reported to 4 decimals
