@@ -76,6 +76,8 @@ def figure(data: str, runs: list[tuple[str, str]], split: str = "test", shapes: 
     """The picture described in the module docstring."""
     models = [(name, *load_run(path)) for name, path in runs]
     first_cfg = models[0][2]
+    if len({cfg.task for _, _, cfg in models}) > 1:
+        raise ValueError("--runs must all be of one task (all image models or all autoencoders)")
     records = TASKS[first_cfg.task].dataset(first_cfg, split, 0)
     chosen, seen = [], set()
     for i, s in enumerate(records.samples):             # one shape per category, in order
@@ -95,7 +97,7 @@ def figure(data: str, runs: list[tuple[str, str]], split: str = "test", shapes: 
     for name, model, cfg in models:
         task = TASKS[cfg.task]
         with torch.no_grad():
-            latent = task.encode(model, cfg, task.dataset(cfg, split, 0) if cfg.task != first_cfg.task else records, idx)
+            latent = task.encode(model, cfg, records, idx)
         columns.append(output_mesh(model, latent))
     for r, i in enumerate(chosen):
         s = records.samples[i]

@@ -7,6 +7,7 @@ the same task for the latent codes of a batch.
 
 from __future__ import annotations
 
+import functools
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -100,8 +101,7 @@ class ImageTask:
 
     @staticmethod
     def _teacher(cfg):
-        from ..evaluate import load_run
-        return load_run(cfg.teacher)
+        return _load_teacher(str(cfg.teacher))
 
     def spec(self, cfg) -> ImageSpec:
         return ImageSpec(size=cfg.image_size)
@@ -142,6 +142,13 @@ class ImageTask:
     def encode(self, model, cfg, dataset, indices):
         samples = [dataset.samples[i] for i in indices]
         return model.encoder(torch.from_numpy(image_batch(samples, self.spec(cfg), None)))
+
+
+@functools.lru_cache(maxsize=4)
+def _load_teacher(run: str):
+    """A teacher autoencoder run (model in eval mode, config), loaded once per process."""
+    from ..evaluate import load_run
+    return load_run(run)
 
 
 TASKS: dict[str, Task] = {"autoencoder": AutoencoderTask(), "image": ImageTask()}

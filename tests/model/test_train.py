@@ -240,3 +240,9 @@ def test_image_encoder_regressed_onto_an_autoencoders_latents_uses_its_decoder(t
     assert torch.allclose(student.train_set.latents[:2], want, atol=1e-5)
     with pytest.raises(ValueError, match="channels"):
         Trainer(config(tiny_data, tmp_path / "bad", **{**kw, "channels": 8}))
+    # the picture of real outputs: input, truth, the run, its depth colours; one row per category
+    from model.figures import TILE, figure
+    img = figure(str(tiny_data), [("student", str(tmp_path / "img"))], split="train", shapes=2)
+    assert img.size == (4 * TILE, 18 + 2 * TILE)
+    with pytest.raises(ValueError, match="one task"):
+        figure(str(tiny_data), [("s", str(tmp_path / "img")), ("t", str(tmp_path / "ae"))], split="train")
