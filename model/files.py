@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import hashlib
 import json
 import math
 from contextlib import contextmanager
@@ -70,3 +71,12 @@ def json_text(obj, indent: int | None = 1) -> str:
     """Strict JSON of ``obj`` (non-finite floats as null), newline-terminated when indented."""
     text = json.dumps(finite(obj), indent=indent, allow_nan=False)
     return text + "\n" if indent is not None else text
+
+
+def sha256_file(path: str | Path) -> str:
+    """Hex sha256 of a file's bytes, read in 1 MiB chunks (checkpoints, bundles, manifests)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()

@@ -11,14 +11,13 @@ The recipe (dataset settings, training settings, seed) is fixed per model in :da
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import shlex
 import sys
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from .files import atomic_path, json_text, write_atomic
+from .files import atomic_path, json_text, sha256_file, write_atomic
 
 CHECKPOINT_FORMAT = 1
 
@@ -50,14 +49,6 @@ RECIPES: dict[str, Recipe] = {
                "--structure-loss", "balanced", "--pred-hidden", "32"],
         evaluate=["--split", "test", "--icp"]),
 }
-
-
-def sha256_file(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def package(run: Path, data: Path, results: dict, out: Path, recipe: Recipe, command: list[str]) -> dict:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from model.release import sha256_file
+from model.files import sha256_file
 from model.train.loop import build_model, config_from_dict
 
 CHECKPOINTS = Path(__file__).resolve().parents[2] / "models" / "checkpoints"
