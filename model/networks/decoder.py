@@ -89,7 +89,7 @@ class OctreeDecoder(nn.Module):
     # -- the per-depth steps (shared by teacher forcing and model.decode.decode) --------------
     def start(self, latent: torch.Tensor) -> torch.Tensor:
         """Features (B*64, C) of the full depth-2 octants, shape-major in key order."""
-        return self.fc(latent).reshape(len(latent) * 64, -1)
+        return self.fc(latent).reshape(-1, self.channels[self.full_depth])
 
     def predict(self, depth: int, x: torch.Tensor, neighbors: torch.Tensor
                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:

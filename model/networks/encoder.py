@@ -43,12 +43,17 @@ class OctreeEncoder(nn.Module):
 
     def forward(self, octree: OctreeTensors) -> torch.Tensor:
         lv = octree.levels
+        return self.encode([v.plane for v in lv], [v.neighbors for v in lv], [v.split for v in lv])
+
+    def encode(self, signals: list, neighbors: list, splits: list) -> torch.Tensor:
+        """The network on plain per-depth tables (lists indexed by depth; the graph export's entry):
+        ``signals[d]`` (N_d, 4) planes, ``neighbors[d]`` (N_d, 27), ``splits[d]`` split indices."""
         d = self.depth
-        x = self.branch[str(d)](lv[d].plane, lv[d].neighbors)
+        x = self.branch[str(d)](signals[d], neighbors[d])
         for d in range(self.depth, self.full_depth, -1):
-            x = self.down[str(d)](x, lv[d].neighbors)
-            x = octree_max_pool(x, lv[d - 1].split, lv[d - 1].neighbors.shape[0])
+            x = self.down[str(d)](x, neighbors[d])
+            x = octree_max_pool(x, splits[d - 1], neighbors[d - 1].shape[0])
             if self.signal == "all":
-                x = torch.maximum(x, self.branch[str(d - 1)](lv[d - 1].plane, lv[d - 1].neighbors))
+                x = torch.maximum(x, self.branch[str(d - 1)](signals[d - 1], neighbors[d - 1]))
         # Depth 2 is full: 64 octants per shape, shape-major in key order.
-        return self.head(x.reshape(octree.batch_size, -1))
+        return self.head(x.reshape(-1, 64 * x.shape[1]))

@@ -1,6 +1,6 @@
 """Octree CNN operations on per-depth feature tables (N, C), for the networks of paper section 4.
 
-Data moves only through index_select, reshape/view/expand, cat and scatter_reduce, arithmetic is
+Data moves only through index_select, reshape/view/expand, cat and index_put, arithmetic is
 matmul and element-wise: autograd derives every backward pass (no custom autograd functions) and
 a captured graph (jit trace, torch.export, ONNX) has no loop over nodes and no branch on data.  Features of a depth are
 rows in node order; neighbour and split tables come from :class:`model.nn.tensors.LevelTensors`.
@@ -75,19 +75,17 @@ def octree_max_pool(x_children: torch.Tensor, split: torch.Tensor, n_parent: int
     """Max-pooling (kernel 2, stride 2) to the parent depth: (8K, C) children of the K split nodes
     -> (n_parent, C); rows of nodes without children are 0.
 
-    Children rows 8k..8k+7 are max-reduced into row ``split[k]`` of a -inf table; rows left at
-    -inf (no children) become 0.  Features reaching the pool come out of a ReLU, so they are >= 0
-    and 0 is the neutral value for the encoder's element-wise max fusion with the parent depth.
-    Tied maxima share the gradient equally (F.max_pool3d gives it to one of them).
+    Children rows 8k..8k+7 are max-reduced (ReduceMax) and written into row ``split[k]`` of a zero
+    table (ScatterND).  Features reaching the pool come out of a ReLU, so they are >= 0 and 0 is
+    the neutral value for the encoder's element-wise max fusion with the parent depth.  Tied
+    maxima share the gradient equally (F.max_pool3d gives it to one of them).
     """
     c = x_children.shape[1]
     if not graph_capture():
         _check(x_children.shape[0] == CHILDREN * split.shape[0],
                f"x_children has {x_children.shape[0]} rows, expected 8 * {split.shape[0]}")
-    index = split.unsqueeze(1).expand(-1, CHILDREN).reshape(-1, 1).expand(-1, c)
-    out = x_children.new_full((n_parent, c), -math.inf)
-    out = out.scatter_reduce(0, index, x_children, reduce="amax", include_self=True)
-    return torch.where(out == -math.inf, torch.zeros_like(out), out)
+    pooled = x_children.reshape(-1, CHILDREN, c).amax(1)
+    return x_children.new_zeros(n_parent, c).index_put((split,), pooled)
 
 
 def octree_deconv(x: torch.Tensor, split: torch.Tensor, weight: torch.Tensor,

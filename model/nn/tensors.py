@@ -34,9 +34,7 @@ class LevelTensors:
         """Copy one :class:`OctreeLevel` into torch tensors (indices widened to int64)."""
         if level.neighbors is None:
             raise ValueError(f"depth {level.depth} has no neighbour table (build with neighbors=True)")
-        split = np.flatnonzero(level.child >= 0)
-        if not np.array_equal(level.child[split], np.arange(len(split))):
-            raise ValueError(f"depth {level.depth}: split nodes are not numbered in index order")
+        split = level.split_nodes()
         return cls(neighbors=torch.from_numpy(level.neighbors.astype(np.int64)),
                    split=torch.from_numpy(split.astype(np.int64)),
                    parent=torch.from_numpy(level.parent.astype(np.int64)),

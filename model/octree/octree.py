@@ -60,6 +60,13 @@ class OctreeLevel:
     def nonempty(self) -> np.ndarray:
         return self.label != EMPTY
 
+    def split_nodes(self) -> np.ndarray:
+        """Indices of the split nodes, ascending; the k-th owns children 8k..8k+7 (checked)."""
+        split = np.flatnonzero(self.child >= 0)
+        if not np.array_equal(self.child[split], np.arange(len(split))):
+            raise ValueError(f"depth {self.depth}: split nodes are not numbered in index order")
+        return split
+
     @property
     def batch(self) -> np.ndarray:
         return morton.batch_of(self.key)
