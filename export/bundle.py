@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from model.files import sha256_file
+from model.preprocess import ImageSpec
 
 BUNDLE_FORMAT = 1
 """Version of the bundle layout written by this code; newer bundles are refused."""
@@ -78,6 +79,12 @@ class Bundle:
 
     def file(self, graph: str) -> Path:
         return self.path / self.graphs[graph].file
+
+    def image_spec(self) -> ImageSpec:
+        """The preprocessing an image-to-shape bundle's encoder was trained with."""
+        if self.input.get("kind") != "image":
+            raise BundleError(f"{self.path}: a {self.task} bundle takes no image")
+        return ImageSpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in self.input["image"].items()})
 
     def checksums(self) -> dict[str, str]:
         return {g.file: g.sha256 for g in self.graphs.values()}

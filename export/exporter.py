@@ -1,6 +1,6 @@
 """Checkpoint -> bundle: load a trained model, export its graphs, write and self-check the bundle.
 
-Sources: a shipped checkpoint folder (``model.pt`` + ``model.json``, as ``model.release``
+Loadeds: a shipped checkpoint folder (``model.pt`` + ``model.json``, as ``model.release``
 writes) or a training run folder (``checkpoint.pt``).  The bundle is written to a temporary
 folder beside the target and renamed when complete, after onnxruntime has decoded a few latent
 codes and matched torch (:func:`self_check`): a half-written or wrong bundle never appears.
@@ -25,7 +25,7 @@ from model.files import UMASK, json_text, sha256_file, write_atomic
 from model.networks import ARCHS, OctreeDecoder, TorchSteps
 from model.octree import DEFAULT_THRESHOLD
 from model.preprocess import ImageSpec
-from model.train.loop import TrainConfig, build_model, config_from_dict, load_checkpoint
+from model.checkpoint import Loaded, load_model
 
 from . import graphs as G
 from .bundle import BUNDLE_FORMAT, MANIFEST, BundleError, GraphSpec, load_bundle
@@ -36,48 +36,25 @@ BUNDLE_TASKS = {"image": "image-to-shape", "autoencoder": "autoencoder"}
 POINT_LIMITS = {"min_points": 100, "max_points": 1_000_000}
 
 
-@dataclasses.dataclass
-class Source:
-    """A trained model ready to export: the network (eval mode), its config and its provenance."""
-
-    model: torch.nn.Module
-    config: TrainConfig
-    meta: dict                  # provenance: the checkpoint folder's model.json, or the run's summary
-
-
-def load_source(path: str | Path) -> Source:
-    """Load a checkpoint folder (model.pt + model.json) or a run folder (checkpoint.pt)."""
-    path = Path(path)
-    if (path / "model.json").is_file() and (path / "model.pt").is_file():
-        meta = json.loads((path / "model.json").read_text())
-        digest = sha256_file(path / "model.pt")
-        if meta.get("weights_sha256") not in (None, digest):
-            raise BundleError(f"{path / 'model.pt'}: sha256 {digest} does not match model.json")
-        cfg = config_from_dict({"data": "", "out": "", **meta["config"]})
-        weights = torch.load(path / "model.pt", map_location="cpu", weights_only=True)
-    elif (path / "checkpoint.pt").is_file():
-        state = load_checkpoint(path / "checkpoint.pt")
-        cfg, weights = config_from_dict(state["config"]), state["model"]
-        meta = {"config": {k: v for k, v in state["config"].items() if k not in ("out", "progress")},
-                "steps": state.get("step"), "calibration": state.get("calibration"),
-                "weights_sha256": None, "source_run": str(path.resolve())}
-        results = path.parent / f"{path.name}_test.json"
+def load_source(path: str | Path) -> Loaded:
+    """A run or checkpoint folder's model (:func:`model.checkpoint.load_model`), if exportable."""
+    try:
+        src = load_model(path)
+    except ValueError as exc:
+        raise BundleError(str(exc)) from None
+    if src.config.task not in BUNDLE_TASKS:
+        raise BundleError(f"{path}: task {src.config.task!r} cannot be exported; exportable: {', '.join(BUNDLE_TASKS)}")
+    if not isinstance(src.model.decoder, OctreeDecoder):
+        raise BundleError(f"{path}: the {src.config.arch} decoder is a research baseline; only octree decoders export")
+    if src.meta.get("source_run"):
+        results = Path(path).parent / f"{Path(path).name}_test.json"
         if results.is_file():
-            meta["evaluation"] = {k: v for k, v in json.loads(results.read_text()).items()
-                                  if k not in ("per_shape", "run")}
-    else:
-        raise BundleError(f"{path}: neither a checkpoint folder (model.pt + model.json) nor a run (checkpoint.pt)")
-    if cfg.task not in BUNDLE_TASKS:
-        raise BundleError(f"{path}: task {cfg.task!r} cannot be exported; exportable: {', '.join(BUNDLE_TASKS)}")
-    cfg = dataclasses.replace(cfg, teacher=None)      # the weights already hold the teacher's decoder
-    model = build_model(cfg)
-    model.load_state_dict(weights)
-    if not isinstance(model.decoder, OctreeDecoder):
-        raise BundleError(f"{path}: the {cfg.arch} decoder is a research baseline; only octree decoders export")
-    return Source(model.eval(), cfg, meta)
+            src.meta["evaluation"] = {k: v for k, v in json.loads(results.read_text()).items()
+                                      if k not in ("per_shape", "run")}
+    return src
 
 
-def _octree_spec(src: Source) -> dict:
+def _octree_spec(src: Loaded) -> dict:
     dec: OctreeDecoder = src.model.decoder
     cfg = src.config
     adaptive = cfg.task == "image" or ARCHS[cfg.arch].octree == "adaptive"
@@ -88,7 +65,7 @@ def _octree_spec(src: Source) -> dict:
             "signal": getattr(getattr(src.model, "encoder", None), "signal", "all")}
 
 
-def _io_spec(src: Source, task: str) -> tuple[dict, dict]:
+def _io_spec(src: Loaded, task: str) -> tuple[dict, dict]:
     if task == "image-to-shape":
         spec = ImageSpec(size=src.config.image_size)
         inp = {"kind": "image", "image": dataclasses.asdict(spec)}
@@ -97,7 +74,7 @@ def _io_spec(src: Source, task: str) -> tuple[dict, dict]:
     return inp, {"kind": "patches", "coordinates": "unit cube [0, 1]^3 (the service maps them to the input's frame)"}
 
 
-def export_graphs(src: Source) -> list[G.Graph]:
+def export_graphs(src: Loaded) -> list[G.Graph]:
     """Every graph the bundle's task runs."""
     model, cfg = src.model, src.config
     out = G.decoder_graphs(model.decoder, cfg.latent)
@@ -108,7 +85,7 @@ def export_graphs(src: Source) -> list[G.Graph]:
     return out
 
 
-def self_check(bundle_dir: Path, src: Source, batch: int = 3, seed: int = 0) -> dict:
+def self_check(bundle_dir: Path, src: Loaded, batch: int = 3, seed: int = 0) -> dict:
     """Decode random latent codes with onnxruntime and torch; raise if they disagree.
 
     Returns the figures: max |difference| of planes on the common leaves and label agreement.

@@ -7,6 +7,8 @@ the NumPy octree core's.  No torch here.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 from typing import Any, Protocol
 
 import numpy as np
@@ -40,7 +42,19 @@ class DecoderSteps(Protocol):
 
 
 def full_levels(batch_size: int, full_depth: int = 2) -> list[OctreeLevel]:
-    """Depths 0..full_depth of ``batch_size`` shapes, every octant split down to full_depth."""
+    """Depths 0..full_depth of ``batch_size`` shapes, every octant split down to full_depth.
+
+    Fresh arrays on every call (callers may modify them), copied from a per-size template.
+    """
+    return [dataclasses.replace(lv, **{f: np.copy(getattr(lv, f)) for f in _ARRAYS})
+            for lv in _full_levels(batch_size, full_depth)]
+
+
+_ARRAYS = ("key", "label", "child", "parent", "plane", "error", "npoints", "neighbors")
+
+
+@functools.lru_cache(maxsize=16)
+def _full_levels(batch_size: int, full_depth: int) -> tuple[OctreeLevel, ...]:
     levels = []
     for d in range(full_depth + 1):
         side = 1 << d
@@ -58,7 +72,7 @@ def full_levels(batch_size: int, full_depth: int = 2) -> list[OctreeLevel]:
     levels[0].neighbors = root_neighbors(batch_size)
     for d in range(1, full_depth + 1):
         levels[d].neighbors = child_neighbors(levels[d - 1].neighbors, levels[d - 1].child)
-    return levels
+    return tuple(levels)
 
 
 def _level(depth: int, key: np.ndarray, parent: np.ndarray) -> OctreeLevel:

@@ -1,7 +1,7 @@
 """Evaluate a trained network with the paper's protocol (sections 5.2 and 5.3).
 
     python -m model.evaluate RUN --data DIR [--split test] --out results.json [--mesh-dir DIR]
-                             [--resolution 128] [--limit N] [--oracle structure|all] [--icp]
+                             [--resolution 128] [--limit N] [--oracle structure|all] [--icp] [--bundle BUNDLE_DIR]
 
 Each shape is encoded (its octree for an autoencoder, a fixed view of its renders for an image
 model), decoded (octrees grow through the shared decode loop), its leaf patches sampled at one
@@ -20,6 +20,7 @@ structure decodes with the true statuses (separating structure errors from patch
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -29,6 +30,7 @@ import numpy as np
 import torch
 
 from .align import icp
+from .checkpoint import load_model
 from .decode import decode
 from .files import json_text, write_atomic
 from .networks import AtlasNetDecoder, OctreeDecoder, PointSetDecoder, TorchSteps
@@ -38,16 +40,14 @@ from .octree.metrics import chamfer_distance, sample_patches
 from .octree.patches import patches_to_mesh
 from .octree.batch import split_octree
 from .train.loop import TrainConfig, build_model, config_from_dict, load_checkpoint
+from .train.images import image_batch
 from .train.tasks import TASKS
 
 
 def load_run(run: str | Path) -> tuple[torch.nn.Module, TrainConfig]:
-    """The trained model (eval mode) and the configuration of a run folder."""
-    state = load_checkpoint(Path(run) / "checkpoint.pt")
-    cfg = config_from_dict(state["config"])
-    model = build_model(cfg)
-    model.load_state_dict(state["model"])
-    return model.eval(), cfg
+    """The trained model (eval mode) and the configuration of a run or checkpoint folder."""
+    loaded = load_model(run)
+    return loaded.model, loaded.config
 
 
 ORACLES = ("none", "structure", "all")
@@ -97,18 +97,19 @@ ATLAS_GRID = 20
 
 
 def decoded_points(model, latent: torch.Tensor, octree_batch: Octree | None, resolution: int, seed: int,
-                   oracle: str = "none") -> list[tuple[np.ndarray, Octree | None]]:
-    """Per shape of the batch: decoded points in cube coordinates, and the decoded octree (or None)."""
+                   oracle: str = "none", steps=None) -> list[tuple[np.ndarray, Octree | None]]:
+    """Per shape of the batch: decoded points in cube coordinates, and the decoded octree (or None).
+    ``steps``: the decoder steps to grow octrees with (default: the torch decoder's)."""
     dec = model.decoder
     if isinstance(dec, (PointSetDecoder, AtlasNetDecoder)):
         with torch.no_grad():
             pts = (dec.grid(latent, ATLAS_GRID) if isinstance(dec, AtlasNetDecoder) else dec(latent)).numpy()
         return [(p.astype(np.float64), None) for p in pts]
-    steps = TorchSteps(dec)
+    steps = steps or TorchSteps(dec)
     out = []
     if oracle != "none":
         steps = Oracle(steps, octree_batch, planes=oracle == "all")
-    for tree in split_octree(decode(steps, latent.numpy())):
+    for tree in split_octree(decode(steps, latent.numpy()), neighbors=False):
         if dec.has_plane(tree.depth):
             pts = sample_patches(tree, resolution=resolution, seed=seed, world=False)
         else:
@@ -124,11 +125,13 @@ def _mean_or_none(values: list[float]) -> float | None:
 
 def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, limit: int | None = None,
              mesh_dir: str | None = None, batch_size: int = 8, seed: int = 0, oracle: str = "none",
-             align: bool = False) -> dict:
-    """The results dictionary written by the CLI (see the module docstring)."""
+             align: bool = False, bundle: str | None = None) -> dict:
+    """The results dictionary written by the CLI (see the module docstring).  ``bundle``: encode
+    and decode with this exported bundle in onnxruntime instead of the torch model."""
     if oracle not in ORACLES:
         raise ValueError(f"--oracle must be one of {', '.join(ORACLES)}")
     model, cfg = load_run(run)
+    cfg = dataclasses.replace(cfg, data=data)          # the dataset to evaluate on (not the training one)
     octree_decoder = isinstance(model.decoder, OctreeDecoder)
     if oracle != "none" and not octree_decoder:
         raise ValueError("--oracle needs an octree decoder")
@@ -138,6 +141,11 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         except OSError as exc:
             raise ValueError(f"cannot create --mesh-dir {mesh_dir}: {exc.strerror}") from None
     task = TASKS[cfg.task]
+    runtime = None
+    if bundle is not None:
+        from export.bundle import load_bundle
+        from export.runtime import Runtime
+        runtime = Runtime(load_bundle(bundle))
     records = task.dataset(cfg, split, seed, points=20_000, limit=limit)
     metrics = ("chamfer_x1e3", "chamfer_icp_x1e3") if align else ("chamfer_x1e3",)
     per_cat: dict[str, dict[str, list[float]]] = {m: {} for m in metrics}
@@ -149,12 +157,19 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     for s in range(0, len(records), batch_size):
         idx = np.arange(s, min(len(records), s + batch_size))
         octree, _ = records.batch(idx)
-        with torch.no_grad():
-            latent = task.encode(model, cfg, records, idx)
+        if runtime is None:
+            with torch.no_grad():
+                latent = task.encode(model, cfg, records, idx)
+        elif cfg.task == "image":
+            latent = torch.from_numpy(runtime.encode_image(
+                image_batch([records.samples[i] for i in idx], task.spec(cfg), None)))
+        else:
+            latent = torch.from_numpy(runtime.encode_octree(octree))
         if octree_decoder:
             for d, m in status_confusion(model, latent, OctreeTensors.from_octree(octree)).items():
                 confusion[d] = confusion.get(d, 0) + m
-        for i, (pts, tree) in zip(idx, decoded_points(model, latent, octree, resolution, seed, oracle)):
+        for i, (pts, tree) in zip(idx, decoded_points(model, latent, octree, resolution, seed, oracle,
+                                                         runtime and runtime.steps())):
             sample = records.samples[i]
             row = {"category": sample.category, "shape_id": sample.shape_id,
                    "truth_nodes": int(sum(sample.octree.nodes_per_depth())), "output_points": int(len(pts))}
@@ -181,7 +196,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
             per_shape.append(row)
     results = {
         "run": str(run), "task": cfg.task, "arch": cfg.arch, "depth": cfg.depth, "split": split,
-        "resolution": resolution, "shapes": len(per_shape), "empty_outputs": empty, "oracle": oracle,
+        "resolution": resolution, "bundle": bundle, "shapes": len(per_shape), "empty_outputs": empty, "oracle": oracle,
     }
     for m in metrics:
         means = {c: float(np.mean(v)) for c, v in sorted(per_cat[m].items())}
@@ -214,7 +229,8 @@ def status_summary(confusion: np.ndarray) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m model.evaluate", description=__doc__.splitlines()[0])
-    ap.add_argument("run", help="run folder of python -m model.train (holds checkpoint.pt)")
+    ap.add_argument("run", help="run folder of python -m model.train (holds checkpoint.pt) or a checkpoint "
+                    "folder (model.pt + model.json)")
     ap.add_argument("--data", required=True, help="dataset folder built by python -m model.data build")
     ap.add_argument("--split", default="test", choices=("train", "val", "test"), help="split to evaluate (default test)")
     ap.add_argument("--out", required=True, help="results JSON")
@@ -226,6 +242,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="diagnostic: decode with the true statuses ('structure') and planes ('all'); default none")
     ap.add_argument("--icp", action="store_true",
                     help="also report the Chamfer distance after rigid ICP alignment to the truth (paper Table 4)")
+    ap.add_argument("--bundle", default=None,
+                    help="run the model's exported ONNX bundle in onnxruntime instead of torch (default: torch)")
     args = ap.parse_args(argv)
     try:
         folder = os.path.dirname(os.path.abspath(args.out))
@@ -234,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.resolution < 2 or args.limit is not None and args.limit < 1:
             raise ValueError("--resolution must be at least 2 and --limit at least 1")
         results = evaluate(args.run, args.data, args.split, args.resolution, args.limit, args.mesh_dir,
-                           oracle=args.oracle, align=args.icp)
+                           oracle=args.oracle, align=args.icp, bundle=args.bundle)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

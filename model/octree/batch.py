@@ -56,11 +56,12 @@ def merge_octrees(octrees: list[Octree]) -> Octree:
                   normalizations=[n for o in octrees for n in o.normalizations])
 
 
-def split_octree(octree: Octree) -> list[Octree]:
+def split_octree(octree: Octree, neighbors: bool = True) -> list[Octree]:
     """The inverse of :func:`merge_octrees`: one octree per batch item (keys without batch bits).
 
     Nodes are shape-major at every depth, so each shape is a slice; child and parent indices are
-    renumbered, and neighbour tables rebuilt when the batch had them.
+    renumbered, and neighbour tables rebuilt when the batch had them (unless ``neighbors`` is
+    False: meshing and sampling need none).
     """
     from .neighbors import build_neighbors
     from .octree import SPLIT
@@ -83,7 +84,7 @@ def split_octree(octree: Octree) -> list[Octree]:
         single = Octree(depth=octree.depth, levels=levels, adaptive=octree.adaptive,
                         threshold=octree.threshold, full_depth=octree.full_depth,
                         adaptive_depth=octree.adaptive_depth, normalizations=[octree.normalizations[b]])
-        if octree.has_neighbors:
+        if neighbors and octree.has_neighbors:
             build_neighbors(single)
         out.append(single)
     return out

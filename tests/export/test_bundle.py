@@ -94,7 +94,7 @@ def test_the_cli_verifies_a_bundle_and_exits_2_with_one_line_on_a_bad_one(bundle
 def test_export_refuses_to_overwrite_and_non_checkpoints_with_exit_2(exported, tmp_path, capsys):
     _, _, folder = exported("aocnn")
     assert export_main([str(tmp_path), "--out", str(tmp_path / "b")]) == 2
-    assert "neither a checkpoint folder" in capsys.readouterr().err
+    assert "neither a run folder" in capsys.readouterr().err
     assert export_main([str(folder.parent / "checkpoint"), "--out", str(folder)]) == 2
     assert "already exists; pass --force" in capsys.readouterr().err
     assert not (tmp_path / "b").exists() and not list(tmp_path.glob("tmp-*"))

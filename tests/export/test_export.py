@@ -19,7 +19,7 @@ from model.octree import build_octree
 from model.octree.batch import split_octree
 from model.octree.metrics import chamfer_distance, sample_patches
 from model.octree.patches import patches_to_mesh
-from model.preprocess import ImageSpec, prepare_image
+from model.preprocess import prepare_image
 
 from .conftest import octree_batch
 
@@ -136,7 +136,7 @@ def test_image_to_shape_end_to_end_matches_torch(exported):
     bundle = load_bundle(folder)
     assert bundle.task == "image-to-shape" and bundle.input["image"]["size"] == cfg.image_size
     runtime = Runtime(bundle, threads=1)
-    spec = ImageSpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in bundle.input["image"].items()})
+    spec = bundle.image_spec()
     images = np.stack([prepare_image(_photo(s), spec) for s in range(3)])
     latent_o = runtime.encode_image(images)
     with torch.no_grad():

@@ -88,3 +88,8 @@ def test_split_octree_inverts_merge():
         for la, lb in zip(a.levels, b.levels):
             for name in ("key", "label", "child", "parent", "plane", "npoints", "neighbors"):
                 assert np.array_equal(getattr(la, name), getattr(lb, name)), name
+    bare = split_octree(merge_octrees(singles), neighbors=False)   # for meshing: no tables rebuilt
+    for a, b in zip(singles, bare):
+        assert not b.has_neighbors
+        for la, lb in zip(a.levels, b.levels):
+            assert np.array_equal(la.key, lb.key) and np.array_equal(la.child, lb.child)

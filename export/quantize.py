@@ -1,0 +1,73 @@
+"""Dynamic int8 quantisation of a bundle's graphs (weights int8, activations quantised per call).
+
+    python -m export.quantize BUNDLE_DIR --out QUANTIZED_DIR [--graphs encoder|decoder|all]
+
+Writes a copy of the bundle with the chosen graphs quantised by
+``onnxruntime.quantization.quantize_dynamic`` (MatMul/Gemm and Conv weights, signed int8) and
+model.json updated (checksums, ``export.quantized``).  Whether it pays is measured, not assumed:
+``bench.onnx_decode`` for speed and ``model.evaluate --bundle`` for the Chamfer distance.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+from model.files import json_text, sha256_file, write_atomic
+
+from .bundle import MANIFEST, BundleError, load_bundle
+
+GROUPS = {"encoder": ("image_encoder", "octree_encoder"), "decoder": ("decoder_",), "all": ("",)}
+
+
+def quantize(bundle_dir: str | Path, out: str | Path, group: str = "all") -> list[str]:
+    """Write the quantised copy; returns the names of the quantised graphs."""
+    from onnxruntime.quantization import QuantType, quantize_dynamic
+
+    bundle = load_bundle(bundle_dir)
+    out = Path(out)
+    if out.exists():
+        raise BundleError(f"{out}: already exists")
+    tmp = Path(tempfile.mkdtemp(prefix="tmp-", dir=out.parent))
+    try:
+        meta = json.loads((bundle.path / MANIFEST).read_text())
+        done = []
+        for name, spec in bundle.graphs.items():
+            target = tmp / spec.file
+            if name.startswith(GROUPS[group]):
+                quantize_dynamic(bundle.file(name), target, weight_type=QuantType.QInt8)
+                done.append(name)
+            else:
+                shutil.copy(bundle.file(name), target)
+            meta["graphs"][name]["sha256"] = sha256_file(target)
+        meta["export"]["quantized"] = done
+        meta["version"] += "-int8"
+        write_atomic(tmp / MANIFEST, json_text(meta).encode())
+        tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return done
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m export.quantize", description=__doc__.splitlines()[0])
+    ap.add_argument("bundle", help="the bundle folder to quantise")
+    ap.add_argument("--out", required=True, help="the quantised bundle folder to write")
+    ap.add_argument("--graphs", choices=sorted(GROUPS), default="all", help="which graphs (default all)")
+    args = ap.parse_args(argv)
+    try:
+        done = quantize(args.bundle, args.out, args.graphs)
+    except (BundleError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{args.out}: {len(done)} graphs quantised to int8")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
