@@ -37,7 +37,8 @@ from export.exporter import export, load_source
 from export.quantize import quantize
 from export.runtime import Runtime
 from model.data.partial import partial_scan
-from model.data.render import render
+from model.data.dataset import unit_mesh
+from model.data.render import R2N2_MAX_DISTANCE, render
 from model.data.shapes import CATEGORIES, generate
 from model.decode import decode
 from model.networks import TorchSteps
@@ -116,9 +117,9 @@ def inputs_for(kind: str, batch: int, size: int) -> list:
     """``batch`` procedural shapes of different categories: renders or partial scans."""
     out = []
     for i in range(batch):
-        mesh = generate(CATEGORIES[(3 * i) % len(CATEGORIES)], i)
-        if kind == "image":
-            rgba, _ = render(mesh, 30 + 40 * i, 25, 2.2, size=137)
+        mesh = unit_mesh(generate(CATEGORIES[(3 * i) % len(CATEGORIES)], i))[0]
+        if kind == "image":                  # as the dataset renders: 0.75 of the R2N2 distance
+            rgba, _ = render(mesh, 30 + 40 * i, 25, 0.75 * R2N2_MAX_DISTANCE, size=137)
             out.append(Image.fromarray(rgba, "RGBA"))
         else:
             out.append(partial_scan(mesh, np.random.default_rng(i))[0])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -125,11 +126,25 @@ def _read_trimesh(path: str, depth: int, n_points: int | None, seed: int) -> Loa
             obj = geoms[0]
         else:
             obj = trimesh.util.concatenate(geoms)
+    declared = _ply_vertex_count(path)
+    if declared is not None and isinstance(obj, (trimesh.PointCloud, trimesh.Trimesh)) and len(obj.vertices) != declared:
+        raise OctreeInputError(f"{path}: the PLY header declares {declared:,} vertices but the file holds "
+                               f"{len(obj.vertices):,}; the file is truncated or corrupt")
     if isinstance(obj, trimesh.PointCloud) or (isinstance(obj, trimesh.Trimesh) and len(obj.faces) == 0):
         return _ply_points(obj, path)
     if not isinstance(obj, trimesh.Trimesh):
         raise OctreeInputError(f"{path}: unsupported content ({type(obj).__name__})")
     return _sample_mesh(obj, path, depth, n_points, seed)
+
+
+def _ply_vertex_count(path: str) -> int | None:
+    """The vertex count a PLY header declares (None for other files)."""
+    with open(path, "rb") as fh:
+        head = fh.read(4096)
+    if not head.startswith(b"ply"):
+        return None
+    m = re.search(rb"element\s+vertex\s+(\d+)", head)
+    return int(m.group(1)) if m else None
 
 
 def _ply_points(obj, path: str) -> LoadedInput:

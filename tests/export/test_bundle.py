@@ -5,9 +5,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
-import sys
-import textwrap
 from pathlib import Path
 
 import pytest
@@ -15,6 +12,8 @@ import pytest
 from export.__main__ import main as export_main
 from export.bundle import MANIFEST, BundleError, load_bundle
 from export.runtime import Runtime, available_cpus
+
+from ..torchless import run_without_torch
 
 
 @pytest.fixture
@@ -103,13 +102,7 @@ def test_export_refuses_to_overwrite_and_non_checkpoints_with_exit_2(exported, t
 def test_the_serving_side_runs_with_torch_absent(exported):
     """The bundle loader, runtime, decode loop, octree core and preprocessing import no torch."""
     _, _, folder = exported("aocnn")
-    script = textwrap.dedent(f"""
-        import sys, importlib.abc
-        class NoTorch(importlib.abc.MetaPathFinder):
-            def find_spec(self, name, path=None, target=None):
-                if name == "torch" or name.startswith("torch."):
-                    raise ImportError("torch is not installed here")
-        sys.meta_path.insert(0, NoTorch())
+    done = run_without_torch(f"""
         import numpy as np
         from export.bundle import load_bundle
         from export.runtime import Runtime
@@ -119,10 +112,8 @@ def test_the_serving_side_runs_with_torch_absent(exported):
         rng = np.random.default_rng(0)
         pts = rng.normal(size=(5000, 3)); pts /= np.linalg.norm(pts, axis=1, keepdims=True)
         octree = runtime.decode(runtime.encode_octree(build_octree((pts, pts), 5)))
-        assert "torch" not in sys.modules
         print("leaves", sum(octree.leaves_per_depth()))
     """)
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert int(done.stdout.split()[-1]) > 0
 

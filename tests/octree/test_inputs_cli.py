@@ -87,6 +87,8 @@ def test_meshes_are_sampled_densely_enough_for_the_depth():
     (b"solid x\nendsolid x\n", ".stl", "empty|no triangles|cannot be read"),
     (b"v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", ".obj", "zero area"),
     (b"garbage that is not a mesh", ".ply", "cannot be read"),
+    (b"ply\nformat ascii 1.0\nelement vertex 100\nproperty float x\nproperty float y\nproperty float z\n"
+     b"end_header\n0 0 0\n1 0 0\n0 1 0\n1 1 1\n", ".ply", "declares 100 vertices but the file holds 4"),
 ])
 def test_bad_files_raise_one_clear_error(tmp_path, content, ext, msg):
     path = tmp_path / f"bad{ext}"

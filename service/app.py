@@ -1,0 +1,60 @@
+"""The FastAPI application: routers, error handlers, limits, CORS, metrics, and the lifespan that
+loads, verifies and warms up every bundle before the service reports ready."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI, Request
+from fastapi.middleware.cors import CORSMiddleware
+
+from . import errors
+from .engine import Engine
+from .limits import BodyLimit
+from .routers import health, models, shapes
+from .settings import Settings
+
+
+def create_app(settings: Settings | None = None, engine: Engine | None = None) -> FastAPI:
+    """The app; bundles load when it starts (lifespan), so a bad bundle stops startup.
+    ``engine``: one whose bundles are already loaded (``python -m service`` checks them first)."""
+    settings = settings or (engine.settings if engine else Settings())
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        eng = engine or Engine(settings)
+        app.state.engine = eng
+        if eng.limiter is None:
+            eng.load()                                          # StartupError: fail fast
+        await asyncio.get_running_loop().run_in_executor(None, eng.warm_up)
+        yield
+        eng.limiter.close()
+
+    app = FastAPI(title="Adaptive O-CNN", version="1", lifespan=lifespan,
+                  description="A photo or a partial scan in, a patch mesh out (Adaptive O-CNN, onnxruntime). "
+                              "Errors are JSON: {\"error\": {\"code\", \"message\", \"hint\"}}.")
+    errors.install(app)
+    for r in (shapes.router, models.router, health.router):
+        app.include_router(r)
+    if settings.origins():
+        app.add_middleware(CORSMiddleware, allow_origins=settings.origins(), allow_methods=["GET", "POST"],
+                           allow_headers=["Authorization", "Content-Type"],
+                           expose_headers=["Content-Disposition", "X-Model-Name", "X-Model-Version",
+                                           "X-Octree-Nodes", "X-Octree-Leaves", "X-Mesh-Faces"])
+    app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
+
+    @app.middleware("http")
+    async def count(request: Request, call_next):
+        start = time.perf_counter()
+        response = await call_next(request)
+        route = request.scope.get("route")
+        endpoint = getattr(route, "path", "unmatched")
+        eng = getattr(request.app.state, "engine", None)
+        if eng is not None:
+            eng.metrics.requests.labels(endpoint, str(response.status_code)).inc()
+            eng.metrics.latency.labels(endpoint).observe(time.perf_counter() - start)
+        return response
+
+    return app

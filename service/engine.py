@@ -1,0 +1,222 @@
+"""The served models and the bounded executor that runs every CPU-bound request.
+
+Invariant: at most ``concurrency`` inferences run at once, each with ``threads`` onnxruntime
+threads, and ``concurrency * threads`` never exceeds the CPUs the process may use; at most
+``queue`` requests wait for a slot, the next ones get 503 with Retry-After.  A slot is released
+when its work has really finished (a timed-out request's thread still holds it until then).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from export.bundle import Bundle, BundleError, load_bundle
+from export.runtime import Runtime, available_cpus
+from model.decode import DECODED_NORMALIZATION
+from model.octree import build_octree
+from model.octree.batch import split_octree
+
+from .errors import APIError
+from .inputs import image_input, shape_input
+from .meshes import MeshFile, encode_mesh
+from .metrics import Metrics, StageTimer
+from .settings import Settings
+
+log = logging.getLogger("service")
+
+
+class StartupError(RuntimeError):
+    """The service cannot start: the message names the bundle and the problem."""
+
+
+@dataclass
+class Served:
+    """One loaded bundle and its onnxruntime sessions."""
+
+    bundle: Bundle
+    runtime: Runtime
+
+
+def plan_threads(settings: Settings, cpus: int | None = None) -> tuple[int, int]:
+    """(concurrency, threads per inference) with concurrency * threads <= the CPUs available."""
+    cpus = cpus or available_cpus()
+    concurrency = min(settings.concurrency or max(1, cpus // 2), cpus)
+    threads = settings.threads or max(1, cpus // concurrency)
+    if concurrency * threads > cpus:
+        threads = max(1, cpus // concurrency)
+    return concurrency, threads
+
+
+class Limiter:
+    """Runs blocking work in a bounded thread pool with a bounded wait (see the module invariant)."""
+
+    def __init__(self, concurrency: int, queue: int, metrics: Metrics):
+        self.concurrency, self.queue, self.metrics = concurrency, queue, metrics
+        self.executor = ThreadPoolExecutor(max_workers=concurrency, thread_name_prefix="infer")
+        self.slots = asyncio.Semaphore(concurrency)
+        self.waiting = 0
+
+    async def run(self, fn: Callable, timeout: float):
+        if self.slots.locked() and self.waiting >= self.queue:
+            raise APIError(503, "busy", f"all {self.concurrency} inference slots are busy and {self.waiting} "
+                           "requests are waiting", "retry after the number of seconds in Retry-After",
+                           {"Retry-After": "1"})
+        start = time.perf_counter()
+        self.waiting += 1
+        self.metrics.waiting.inc()
+        try:
+            await asyncio.wait_for(self.slots.acquire(), timeout)
+        except (asyncio.TimeoutError, TimeoutError):
+            raise APIError(504, "timeout", f"no inference slot became free within {timeout:g} s",
+                           "retry later or raise AOCNN_TIMEOUT_S", {"Retry-After": "1"}) from None
+        finally:
+            self.waiting -= 1
+            self.metrics.waiting.dec()
+        waited = time.perf_counter() - start
+        self.metrics.queue.observe(waited)
+
+        def work():
+            self.metrics.in_flight.inc()
+            try:
+                return fn()
+            finally:
+                self.metrics.in_flight.dec()
+
+        future = asyncio.get_running_loop().run_in_executor(self.executor, work)
+        future.add_done_callback(lambda _: self.slots.release())
+        try:
+            return await asyncio.wait_for(asyncio.shield(future), max(timeout - waited, 0.001))
+        except (asyncio.TimeoutError, TimeoutError):
+            raise APIError(504, "timeout", f"the request did not finish within {timeout:g} s",
+                           "send a smaller input or raise AOCNN_TIMEOUT_S") from None
+
+    def close(self) -> None:
+        self.executor.shutdown(wait=False, cancel_futures=True)
+
+
+class Engine:
+    """Bundles by task, the limiter and metrics; built once in the app's lifespan."""
+
+    def __init__(self, settings: Settings):
+        self.settings = settings
+        self.metrics = Metrics()
+        self.concurrency, self.threads = plan_threads(settings)
+        self.models: dict[str, Served] = {}
+        self.limiter: Limiter | None = None
+        self.ready = False
+
+    def load(self) -> None:
+        """Load and verify every bundle under ``models_dir``; StartupError on the first bad one."""
+        root = self.settings.models_dir
+        if not root.is_dir():
+            raise StartupError(f"{root}: the models folder does not exist (set AOCNN_MODELS_DIR)")
+        folders = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(("tmp-", ".")))
+        if not folders:
+            raise StartupError(f"{root}: holds no bundle folders (export one with python -m export)")
+        for folder in folders:
+            try:
+                bundle = load_bundle(folder)
+                served = Served(bundle, Runtime(bundle, threads=self.threads))
+            except BundleError as exc:
+                raise StartupError(f"bundle {folder.name}: {exc}") from None
+            if bundle.task in self.models:
+                raise StartupError(f"bundles {self.models[bundle.task].bundle.path.name} and {folder.name} both "
+                                   f"serve {bundle.task}; keep one")
+            self.models[bundle.task] = served
+        self.limiter = Limiter(self.concurrency, self.settings.queue, self.metrics)
+
+    def warm_up(self) -> None:
+        """One inference per model (first calls allocate and optimise); then the service is ready."""
+        for served in self.models.values():
+            rt, b = served.runtime, served.bundle
+            if b.task == "image-to-shape":
+                size = b.image_spec().size
+                latent = rt.encode_image(np.zeros((1, 3, size, size), np.float32))
+            elif b.task in ("completion", "autoencoder"):
+                latent = rt.encode_octree(build_octree(_sphere(), b.octree.depth, adaptive=b.octree.adaptive))
+            else:
+                continue
+            octree = split_octree(rt.decode(latent), neighbors=False)[0]
+            if any(octree.leaves_per_depth()):               # first exports import and compile lazily
+                for fmt in ("glb", "gltf", "ply", "obj"):
+                    encode_mesh(octree, fmt)
+        self.ready = True
+
+    def model(self, task: str) -> Served:
+        if task not in self.models:
+            raise APIError(503, "no_model", f"no {task} model is installed in this service",
+                           f"add a {task} bundle to AOCNN_MODELS_DIR and restart; GET /v1/models lists what is served",
+                           {"Retry-After": "3600"})
+        return self.models[task]
+
+    def check_depth(self, served: Served, depth: int | None) -> int:
+        o = served.bundle.octree
+        if depth is None:
+            return o.depth
+        if not o.adaptive_depth <= depth <= o.depth:
+            raise APIError(422, "invalid_depth", f"depth must be in {o.adaptive_depth}..{o.depth} for this model, "
+                           f"got {depth}", "omit depth for the model's full detail")
+        return depth
+
+    # -- the blocking work of each endpoint (runs in the limiter's threads) -----------------
+    def image_to_shape(self, data: bytes, fmt: str, depth: int | None, color: bool, timer: StageTimer) -> MeshFile:
+        served = self.model("image-to-shape")
+        depth = self.check_depth(served, depth)
+        with timer("decode_input"):
+            x = image_input(data, served.bundle.image_spec(), self.settings.max_image_pixels)
+        with timer("encoder"):
+            latent = served.runtime.encode_image(x[None])
+        with timer("decoder"):
+            octree = served.runtime.decode(latent, depth)
+        octree.normalizations = [DECODED_NORMALIZATION]
+        return _mesh(octree, fmt, color, timer)
+
+    def complete(self, data: bytes, filename: str | None, fmt: str, depth: int | None, color: bool,
+                 timer: StageTimer) -> MeshFile:
+        served = self.model("completion")
+        o = served.bundle.octree
+        depth = self.check_depth(served, depth)
+        with timer("decode_input"):
+            loaded = shape_input(data, filename, o.depth, self.settings.max_points, self.settings.max_npz_bytes)
+        with timer("octree_build"):
+            tree = build_octree(loaded.cloud, o.depth, adaptive=o.adaptive, full_depth=o.full_depth,
+                                adaptive_depth=o.adaptive_depth, **({"threshold": o.threshold} if o.threshold else {}))
+        with timer("encoder"):
+            latent = served.runtime.encode_octree(tree)
+        with timer("decoder"):
+            octree = served.runtime.decode(latent, depth)
+        octree.normalizations = tree.normalizations        # back to the input's own frame
+        return _mesh(octree, fmt, color, timer)
+
+    def octree(self, data: bytes, filename: str | None, depth: int, threshold: float | None, full: bool, fmt: str,
+               color: bool, timer: StageTimer) -> MeshFile:
+        with timer("decode_input"):
+            loaded = shape_input(data, filename, depth, self.settings.max_points, self.settings.max_npz_bytes, "shape")
+        with timer("octree_build"):
+            tree = build_octree(loaded.cloud, depth, adaptive=not full, neighbors=False,
+                                sample_spacing=loaded.sample_spacing, **({"threshold": threshold} if threshold else {}))
+        return _mesh(tree, fmt, color, timer)
+
+
+def _mesh(octree, fmt: str, color: bool, timer: StageTimer) -> MeshFile:
+    with timer("mesh_encode"):
+        single = split_octree(octree, neighbors=False)[0] if octree.batch_size > 1 else octree
+        if not any(single.leaves_per_depth()):
+            raise APIError(422, "empty_output", "the model decoded no surface from this input",
+                           "send a photo or scan of one object, centred, on a plain background")
+        return encode_mesh(single, fmt, color)
+
+
+def _sphere(n: int = 4000) -> tuple[np.ndarray, np.ndarray]:
+    """A unit sphere's points and normals (the warm-up input)."""
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(n, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    return p, p

@@ -1,0 +1,110 @@
+"""Uploaded inputs to arrays, with limits: images through the shared preprocessing, point clouds
+and meshes through the octree core's loader.  Formats are sniffed from the bytes (a lying
+Content-Type or file name changes nothing); pickled arrays are never unpickled; temporary files
+are removed whatever happens.
+"""
+
+from __future__ import annotations
+
+import io
+import re
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from model.octree import OctreeInputError
+from model.octree.inputs import LoadedInput, load_input
+from model.preprocess import ImageError, ImageSpec, decode_image, prepare_image
+
+from .errors import APIError
+
+POINT_FORMATS = ("ply", "xyz", "txt", "npy", "npz", "obj")
+MESH_FORMATS = ("obj", "off", "stl", "glb", "gltf", "ply")
+
+
+def image_input(data: bytes, spec: ImageSpec, max_pixels: int) -> np.ndarray:
+    """Encoder input (3, S, S) of an uploaded image, or a 4xx."""
+    if not data:
+        raise APIError(400, "empty_input", "the 'image' field is empty", "upload the image file's bytes")
+    try:
+        return prepare_image(decode_image(data, max_pixels), spec)
+    except ImageError as exc:
+        message = str(exc)
+        if "more than the limit" in message:
+            raise APIError(413, "image_too_large", message, "send a smaller image (downscale it)") from None
+        if "not an image" in message:
+            raise APIError(415, "unsupported_image", message, "send PNG, JPEG, WebP, GIF, BMP or TIFF") from None
+        raise APIError(400, "invalid_image", message, "send a complete, readable photo of one object") from None
+
+
+def sniff(data: bytes, filename: str | None) -> str:
+    """The file format of uploaded shape bytes: from magic numbers first, then text content,
+    the file name's extension only where the bytes cannot tell (OFF/STL/glTF/OBJ)."""
+    head = data[:512]
+    if head.startswith(b"\x93NUMPY"):
+        return "npy"
+    if head.startswith(b"PK\x03\x04"):
+        return "npz"
+    if head.startswith(b"ply"):
+        return "ply"
+    if head.startswith(b"glTF"):
+        return "glb"
+    ext = Path(filename or "").suffix.lower().lstrip(".")
+    text = head.lstrip()
+    if text.startswith(b"OFF"):
+        return "off"
+    if text.startswith(b"solid") or ext == "stl":
+        return "stl"
+    if text.startswith(b"{") and ext == "gltf":
+        return "gltf"
+    if re.search(rb"^\s*(v|vn|f|o|g|mtllib)\s", head, re.M) and not re.match(rb"^\s*[-+.\d]", text):
+        return "obj"
+    return "xyz"
+
+
+def _check_size(data: bytes, fmt: str, max_points: int, max_npz_bytes: int) -> None:
+    """Refuse from headers what would decode to too much, before decoding it."""
+    if fmt == "npz":
+        try:
+            total = sum(i.file_size for i in zipfile.ZipFile(io.BytesIO(data)).infolist())
+        except zipfile.BadZipFile:
+            raise APIError(400, "invalid_points", "the NPZ archive is corrupt", "send a file written by numpy.savez") from None
+        if total > max_npz_bytes:
+            raise APIError(413, "input_too_large", f"the NPZ archive unpacks to {total:,} bytes, more than the "
+                           f"limit of {max_npz_bytes:,}", "send fewer points")
+    elif fmt == "ply":
+        m = re.search(rb"element\s+vertex\s+(\d+)", data[:4096])
+        if m and int(m.group(1)) > max_points:
+            raise APIError(413, "too_many_points", f"the PLY header declares {int(m.group(1)):,} vertices, more "
+                           f"than the limit of {max_points:,}", "subsample the cloud")
+    elif fmt == "npy":
+        m = re.search(rb"'shape':\s*\((\d+)", data[:512])
+        if m and int(m.group(1)) > max_points:
+            raise APIError(413, "too_many_points", f"the array has {int(m.group(1)):,} rows, more than the limit "
+                           f"of {max_points:,}", "subsample the cloud")
+
+
+def shape_input(data: bytes, filename: str | None, depth: int, max_points: int, max_npz_bytes: int,
+                field: str = "points") -> LoadedInput:
+    """Oriented points of an uploaded point cloud or mesh (normals estimated when absent), or a 4xx."""
+    if not data:
+        raise APIError(400, "empty_input", f"the '{field}' field is empty", "upload the file's bytes")
+    fmt = sniff(data, filename)
+    _check_size(data, fmt, max_points, max_npz_bytes)
+    with tempfile.TemporaryDirectory(prefix="aocnn-") as tmp:
+        path = Path(tmp) / f"upload.{fmt}"
+        path.write_bytes(data)
+        try:
+            loaded = load_input(str(path), depth)
+        except OctreeInputError as exc:
+            message = str(exc).replace(str(path), f"the {fmt.upper()} upload")
+            raise APIError(400, "invalid_points", message,
+                           "send a point cloud (PLY, XYZ/TXT, NPY, NPZ, OBJ vertices) or a mesh with real "
+                           "coordinates") from None
+    n = len(loaded.cloud.points)
+    if loaded.kind == "points" and n > max_points:
+        raise APIError(413, "too_many_points", f"the upload has {n:,} points, more than the limit of {max_points:,}",
+                       "subsample the cloud")
+    return loaded

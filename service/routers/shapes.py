@@ -1,0 +1,96 @@
+"""The shape endpoints: photo -> shape, partial scan -> completed shape, shape -> its octree,
+shape -> categories.  Uploads are multipart fields; the work runs in the engine's limiter."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends, File, Header, Query, UploadFile
+from fastapi.responses import Response
+
+from ..deps import engine, require_key
+from ..engine import Engine
+from ..errors import ERROR_RESPONSES, APIError
+from ..meshes import FORMATS, MeshFile, choose_format
+from ..metrics import StageTimer
+from ..schemas import ClassifyResponse, Format
+
+router = APIRouter(prefix="/v1", tags=["shapes"], dependencies=[Depends(require_key)])
+
+MESH_RESPONSE = {200: {"description": "the patch mesh", "content": {m: {} for m in FORMATS.values()}},
+                 **ERROR_RESPONSES}
+FORMAT_Q = Query(None, description="glb (default), gltf, ply or obj; an Accept header may choose too")
+DEPTH_Q = Query(None, ge=1, le=12, description="decode only down to this depth (a coarser, faster level of detail)")
+COLOR_Q = Query(False, description="colour each patch by its octree depth")
+
+
+def mesh_response(mesh: MeshFile, name: str, timer: StageTimer, model: str = "", version: str = "") -> Response:
+    headers = {"Content-Disposition": f'attachment; filename="{name}.{mesh.extension}"',
+               "X-Octree-Nodes": str(mesh.nodes),
+               "X-Octree-Leaves": ",".join(f"{d}:{n}" for d, n in mesh.leaves.items()),
+               "X-Mesh-Faces": str(mesh.faces), "Server-Timing": timer.header()}
+    if model:
+        headers |= {"X-Model-Name": model, "X-Model-Version": version}
+    return Response(mesh.data, media_type=mesh.media_type, headers=headers)
+
+
+async def _read(upload: UploadFile) -> tuple[bytes, str | None]:
+    return await upload.read(), upload.filename
+
+
+@router.post("/image-to-shape", response_class=Response, responses=MESH_RESPONSE,
+             summary="A photo of one object -> its 3D shape as a patch mesh")
+async def image_to_shape(image: UploadFile = File(..., description="PNG, JPEG, WebP, GIF, BMP or TIFF of one object"),
+                         format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q,
+                         color_by_depth: bool = COLOR_Q, accept: str | None = Header(None),
+                         eng: Engine = Depends(engine)) -> Response:
+    data, _ = await _read(image)
+    fmt = choose_format(format, accept)
+    timer = StageTimer(eng.metrics)
+    mesh = await eng.limiter.run(lambda: eng.image_to_shape(data, fmt, depth, color_by_depth, timer),
+                                 eng.settings.timeout_s)
+    b = eng.models["image-to-shape"].bundle
+    return mesh_response(mesh, "shape", timer, b.name, b.version)
+
+
+@router.post("/complete", response_class=Response, responses=MESH_RESPONSE,
+             summary="A partial, noisy point cloud -> the completed shape, in the input's coordinates")
+async def complete(points: UploadFile = File(..., description="PLY (ascii/binary), XYZ/TXT, NPY, NPZ or OBJ "
+                                              "vertices, with or without normals"),
+                   format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q, color_by_depth: bool = COLOR_Q,
+                   accept: str | None = Header(None), eng: Engine = Depends(engine)) -> Response:
+    data, filename = await _read(points)
+    fmt = choose_format(format, accept)
+    timer = StageTimer(eng.metrics)
+    mesh = await eng.limiter.run(lambda: eng.complete(data, filename, fmt, depth, color_by_depth, timer),
+                                 eng.settings.timeout_s)
+    b = eng.models["completion"].bundle
+    return mesh_response(mesh, "completed", timer, b.name, b.version)
+
+
+@router.post("/octree", response_class=Response, responses=MESH_RESPONSE,
+             summary="A mesh or point cloud -> its patch-guided adaptive octree as a patch mesh (no learning)")
+async def octree(shape: UploadFile = File(..., description="a mesh (OBJ, OFF, STL, PLY, GLB, glTF) or a point cloud"),
+                 depth: int = Query(6, ge=2, le=10, description="octree depth"),
+                 threshold: float | None = Query(None, gt=0, le=64, description="split threshold in finest voxels "
+                                                 "(default the paper's sqrt(3)/2)"),
+                 full: bool = Query(False, description="the full O-CNN octree instead of the adaptive one"),
+                 format: Format | None = FORMAT_Q, color_by_depth: bool = COLOR_Q,
+                 accept: str | None = Header(None), eng: Engine = Depends(engine)) -> Response:
+    if depth > eng.settings.max_octree_depth:
+        raise APIError(422, "invalid_depth", f"depth must be at most {eng.settings.max_octree_depth}, got {depth}",
+                       "ask for a smaller depth (or raise AOCNN_MAX_OCTREE_DEPTH)")
+    data, filename = await _read(shape)
+    fmt = choose_format(format, accept)
+    timer = StageTimer(eng.metrics)
+    mesh = await eng.limiter.run(
+        lambda: eng.octree(data, filename, depth, threshold, full, fmt, color_by_depth, timer), eng.settings.timeout_s)
+    return mesh_response(mesh, "octree", timer)
+
+
+@router.post("/classify", response_model=ClassifyResponse, responses=ERROR_RESPONSES,
+             summary="A mesh or point cloud -> its most likely categories")
+async def classify(shape: UploadFile = File(..., description="a mesh or point cloud"),
+                   top_k: int = Query(5, ge=1, le=50, description="how many categories to return"),
+                   eng: Engine = Depends(engine)) -> ClassifyResponse:
+    eng.model("classify")               # 503 until a classification bundle is installed (the tasks issue)
+    raise APIError(503, "no_model", "classification bundles are not supported by this version",
+                   "upgrade the service")

@@ -1,0 +1,52 @@
+"""Request and response models of the API (they make the OpenAPI schema at /docs)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, Field
+
+Format = Literal["glb", "gltf", "ply", "obj"]
+
+
+class GraphInfo(BaseModel):
+    file: str
+    sha256: str = Field(examples=["3f0c…"])
+
+
+class ModelInfo(BaseModel):
+    """One served bundle."""
+
+    task: str = Field(examples=["image-to-shape"])
+    name: str
+    version: str = Field(examples=["0.1.0+eb0466a052b7"])
+    depth: int = Field(description="the deepest octree level the model decodes", examples=[6])
+    min_depth: int = Field(description="the coarsest level of detail a request may ask for", examples=[4])
+    input: dict = Field(description="the input spec (image preprocessing or point limits)")
+    categories: list[str]
+    graphs: dict[str, GraphInfo]
+    evaluation: dict | None = Field(None, description="the checkpoint's test figures")
+
+
+class ModelsResponse(BaseModel):
+    models: list[ModelInfo]
+
+
+class Health(BaseModel):
+    status: Literal["ok"] = "ok"
+
+
+class Readiness(BaseModel):
+    ready: bool
+    models: list[str] = Field(description="tasks served once ready", examples=[["image-to-shape"]])
+
+
+class ClassScore(BaseModel):
+    category: str
+    probability: float = Field(ge=0, le=1)
+
+
+class ClassifyResponse(BaseModel):
+    model: str
+    version: str
+    top: list[ClassScore]

@@ -1,0 +1,190 @@
+"""Every endpoint over HTTP (TestClient): outputs, headers, formats, and the models they come from."""
+
+from __future__ import annotations
+
+import io
+import json
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from export.bundle import load_bundle
+from export.runtime import Runtime
+from model.files import sha256_file
+from model.octree import build_octree
+from model.octree.patches import patches_to_mesh
+
+from .conftest import make_client
+
+
+def png(img: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    Image.fromarray(img).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def photo(seed: int = 0) -> bytes:
+    rng = np.random.default_rng(seed)
+    img = rng.integers(170, 255, (100, 140, 3)).astype(np.uint8)
+    img[25:80, 40:100] = (60, 80, 120)
+    return png(img)
+
+
+def partial_cloud(clouds, shift=(100.0, -20.0, 5.0), scale=40.0) -> np.ndarray:
+    pts = clouds[-1][0]
+    keep = pts[:, 0] < np.quantile(pts[:, 0], 0.7)
+    return pts[keep] * scale + np.asarray(shift)
+
+
+def test_health_readiness_and_their_v2_aliases(client):
+    for path in ("/healthz", "/v2/health/live"):
+        assert client.get(path).json() == {"status": "ok"}
+    for path in ("/readyz", "/v2/health/ready"):
+        r = client.get(path)
+        assert r.status_code == 200 and r.json() == {"ready": True, "models": ["completion", "image-to-shape"]}
+
+
+def test_models_lists_each_bundle_with_the_checksums_of_its_files(client, models_dir):
+    body = client.get("/v1/models").json()
+    tasks = {m["task"]: m for m in body["models"]}
+    assert set(tasks) == {"image-to-shape", "completion"}
+    img = tasks["image-to-shape"]
+    assert img["depth"] == 5 and img["min_depth"] == 4 and img["input"]["image"]["size"] == 64
+    for name, g in img["graphs"].items():
+        assert g["sha256"] == sha256_file(models_dir / "image-to-shape" / g["file"])
+
+
+@pytest.mark.parametrize("fmt, media", [("glb", "model/gltf-binary"), ("gltf", "model/gltf+json"),
+                                        ("ply", "application/x-ply"), ("obj", "model/obj")])
+def test_image_to_shape_returns_the_bundle_s_decoded_patches_in_every_format(client, models_dir, fmt, media):
+    r = client.post(f"/v1/image-to-shape?format={fmt}", files={"image": ("p.png", photo(), "image/png")})
+    assert r.status_code == 200, r.text
+    assert r.headers["content-type"] == media
+    assert r.headers["content-disposition"] == f'attachment; filename="shape.{fmt}"'
+    assert r.headers["x-model-name"] == "image-to-shape" and "+" in r.headers["x-model-version"]
+    mesh = trimesh.load(io.BytesIO(r.content), file_type=fmt, force="mesh", process=False)
+    # the same photo through the bundle directly gives the same patches
+    bundle = load_bundle(models_dir / "image-to-shape")
+    from model.preprocess import load_and_prepare
+    runtime = Runtime(bundle, threads=1)
+    octree = runtime.decode(runtime.encode_image(load_and_prepare(photo(), bundle.image_spec())[None]))
+    want = patches_to_mesh(octree)
+    assert int(r.headers["x-mesh-faces"]) == len(want.faces) > 0
+    assert int(r.headers["x-octree-nodes"]) == sum(octree.nodes_per_depth())
+    assert r.headers["x-octree-leaves"] == ",".join(f"{d}:{n}" for d, n in enumerate(octree.leaves_per_depth()) if n)
+    assert np.allclose(mesh.bounds, want.bounds, atol=1e-5)
+    assert mesh.area == pytest.approx(want.area, rel=1e-4)
+    assert np.abs(mesh.bounds).max() <= 0.5 + 1e-4            # unit cube centred at 0
+
+
+def test_accept_header_chooses_the_format_and_depth_gives_a_coarser_level(client):
+    r = client.post("/v1/image-to-shape", files={"image": ("p.png", photo())}, headers={"Accept": "model/obj"})
+    assert r.headers["content-type"] == "model/obj"
+    fine = client.post("/v1/image-to-shape", files={"image": ("p.png", photo())})
+    coarse = client.post("/v1/image-to-shape?depth=4", files={"image": ("p.png", photo())})
+    assert fine.headers["content-type"] == "model/gltf-binary"
+    assert max(int(p.split(":")[0]) for p in coarse.headers["x-octree-leaves"].split(",")) == 4
+    assert int(coarse.headers["x-octree-nodes"]) < int(fine.headers["x-octree-nodes"])
+    colored = client.post("/v1/image-to-shape?color_by_depth=true&format=ply", files={"image": ("p.png", photo())})
+    mesh = trimesh.load(io.BytesIO(colored.content), file_type="ply", process=False)
+    assert len(np.unique(mesh.visual.face_colors[:, :3], axis=0)) >= 2
+
+
+def _npz(pts, normals=None) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, points=pts, **({"normals": normals} if normals is not None else {}))
+    return buf.getvalue()
+
+
+def _npy(arr) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, arr)
+    return buf.getvalue()
+
+
+def _uploads(pts: np.ndarray, normals: np.ndarray) -> dict[str, bytes]:
+    cloud = trimesh.PointCloud(pts)
+    return {
+        "scan.ply": trimesh.PointCloud(pts).export(file_type="ply"),             # binary
+        "scan_ascii.ply": cloud.export(file_type="ply", encoding="ascii"),
+        "scan.xyz": "\n".join(" ".join(f"{v:.6f}" for v in p) for p in pts).encode(),
+        "scan.txt": "\n".join(" ".join(f"{v:.6f}" for v in row) for row in np.hstack([pts, normals])).encode(),
+        "scan.npy": _npy(pts.astype(np.float32)),
+        "scan.npz": _npz(pts, normals),
+        "scan.obj": "\n".join(f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in pts).encode(),
+    }
+
+
+def test_complete_accepts_every_point_format_and_answers_in_the_input_frame(client, clouds):
+    pts = partial_cloud(clouds)[::4]
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    lo, hi = pts.min(0), pts.max(0)
+    for name, data in _uploads(pts, normals).items():
+        r = client.post("/v1/complete?format=ply", files={"points": (name, data)})
+        assert r.status_code == 200, (name, r.text)
+        assert r.headers["x-model-name"] == "completion-test"
+        mesh = trimesh.load(io.BytesIO(r.content), file_type="ply", process=False)
+        centre, extent = (lo + hi) / 2, (hi - lo).max()
+        # the decoded cube is the input's bounding cube (padded): the output is in the scan's frame
+        assert np.all(np.abs(mesh.vertices - centre) <= extent), name
+        assert np.abs(mesh.vertices.mean(0) - centre).max() < 0.5 * extent
+
+
+def test_octree_endpoint_builds_the_adaptive_octree_of_a_mesh(client):
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=3.0)
+    data = sphere.export(file_type="obj").encode() if isinstance(sphere.export(file_type="obj"), str) \
+        else sphere.export(file_type="obj")
+    r = client.post("/v1/octree?depth=5&format=glb", files={"shape": ("s.obj", data)})
+    assert r.status_code == 200, r.text
+    leaves = dict(p.split(":") for p in r.headers["x-octree-leaves"].split(","))
+    assert set(leaves) <= {"4", "5"} and "X-Model-Name" not in r.headers
+    mesh = trimesh.load(io.BytesIO(r.content), file_type="glb", force="mesh")
+    radius = np.linalg.norm(mesh.vertices, axis=1)
+    assert np.abs(radius - 3.0).max() < 3.0 * 2 / 32         # patches lie within a few voxels of the sphere
+    full = client.post("/v1/octree?depth=5&full=true", files={"shape": ("s.obj", data)})
+    assert set(dict(p.split(":") for p in full.headers["x-octree-leaves"].split(","))) == {"5"}
+
+
+def test_openapi_documents_every_endpoint_with_its_models(client):
+    spec = client.get("/openapi.json").json()
+    for path in ("/v1/image-to-shape", "/v1/complete", "/v1/octree", "/v1/classify", "/v1/models",
+                 "/healthz", "/readyz", "/metrics"):
+        assert path in spec["paths"], path
+    assert "ErrorBody" in spec["components"]["schemas"] and "ModelInfo" in spec["components"]["schemas"]
+    assert client.get("/docs").status_code == 200
+
+
+def test_metrics_count_requests_and_time_each_stage(client):
+    client.post("/v1/image-to-shape", files={"image": ("p.png", photo())})
+    client.post("/v1/image-to-shape", files={"image": ("p.png", b"not an image")})
+    text = client.get("/metrics").text
+    assert 'aocnn_requests_total{endpoint="/v1/image-to-shape",status="200"}' in text
+    assert 'aocnn_requests_total{endpoint="/v1/image-to-shape",status="415"}' in text
+    for stage in ("decode_input", "encoder", "decoder", "mesh_encode"):
+        assert f'aocnn_stage_seconds_count{{stage="{stage}"}}' in text
+    assert "aocnn_queue_seconds_count" in text and "aocnn_inferences_in_flight 0.0" in text
+
+
+def test_api_keys_when_configured(models_dir):
+    with make_client(models_dir, api_keys="k1, k2") as c:
+        assert c.get("/v1/models").status_code == 401
+        r = c.get("/v1/models", headers={"Authorization": "Bearer nope"})
+        assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer"
+        assert r.json()["error"]["code"] == "unauthorized"
+        assert c.get("/v1/models", headers={"Authorization": "Bearer k2"}).status_code == 200
+        assert c.get("/healthz").status_code == 200                 # probes need no key
+
+
+def test_cors_allows_the_configured_origin_only(models_dir):
+    with make_client(models_dir, cors_origins="http://demo.example") as c:
+        ok = c.options("/v1/models", headers={"Origin": "http://demo.example", "Access-Control-Request-Method": "GET"})
+        assert ok.headers.get("access-control-allow-origin") == "http://demo.example"
+        bad = c.options("/v1/models", headers={"Origin": "http://evil.example", "Access-Control-Request-Method": "GET"})
+        assert "access-control-allow-origin" not in bad.headers
+
+
+def test_classify_says_no_model_is_installed(client):
+    r = client.post("/v1/classify", files={"shape": ("s.xyz", b"0 0 0\n1 0 0\n0 1 0\n")})
+    assert r.status_code == 503 and r.json()["error"]["code"] == "no_model" and r.headers["retry-after"]
