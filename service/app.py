@@ -35,6 +35,8 @@ def create_app(settings: Settings | None = None, engine: Engine | None = None) -
     app = FastAPI(title="Adaptive O-CNN", version="1", lifespan=lifespan,
                   description="A photo or a partial scan in, a patch mesh out (Adaptive O-CNN, onnxruntime). "
                               "Errors are JSON: {\"error\": {\"code\", \"message\", \"hint\"}}.")
+    if engine is not None:
+        app.state.engine = engine                               # usable without the lifespan (ASGI test tools)
     errors.install(app)
     for r in (shapes.router, models.router, health.router):
         app.include_router(r)
