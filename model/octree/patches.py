@@ -71,20 +71,40 @@ def patch_triangles(patches: PatchSet) -> tuple[np.ndarray, np.ndarray]:
     return verts, faces[keep]
 
 
-def patches_to_mesh(octree: Octree, color_by_depth: bool = False, world: bool = True):
-    """A trimesh of all leaf patches, in the input's coordinates (one shape) unless ``world`` is False."""
-    import trimesh
+@dataclass
+class PatchMesh:
+    """Triangles of all leaf patches: only the vertices the faces use, each patch its own."""
 
+    vertices: np.ndarray             # (V, 3) float64
+    faces: np.ndarray                # (F, 3) int64, counter-clockwise about each patch's normal
+    vertex_depth: np.ndarray         # (V,) int octree depth of the patch each vertex belongs to
+
+
+def patch_mesh(octree: Octree, world: bool = True) -> PatchMesh:
+    """The leaf patches' triangle mesh, in the input's coordinates (one shape) unless ``world`` is
+    False; the arrays every mesh writer starts from."""
     patches = leaf_patches(octree)
     verts, faces = patch_triangles(patches)
     if world:
         if octree.batch_size != 1:
             raise ValueError("world coordinates need a single-shape octree; pass world=False")
         verts = octree.normalizations[0].to_world(verts)
-    colors = None
-    if color_by_depth and len(faces):
-        depth_per_face = np.repeat(patches.depth, np.maximum(patches.count - 2, 0))
-        colors = np.concatenate([DEPTH_COLORS[np.minimum(depth_per_face, 16)],
-                                 np.full((len(faces), 1), 255, np.uint8)], axis=1)
-    mesh = trimesh.Trimesh(vertices=verts, faces=faces, face_colors=colors, process=False)
-    return mesh
+    used = np.flatnonzero((np.arange(MAX_POLYGON)[None] < patches.count[:, None]).ravel())
+    remap = np.full(len(verts), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return PatchMesh(np.asarray(verts)[used], remap[faces] if len(faces) else np.zeros((0, 3), np.int64),
+                     np.repeat(patches.depth, MAX_POLYGON)[used])
+
+
+def depth_colors(depth: np.ndarray) -> np.ndarray:
+    """RGBA uint8 colours (N, 4) of octree depths (:data:`DEPTH_COLORS`)."""
+    return np.concatenate([DEPTH_COLORS[np.minimum(depth, 16)], np.full((len(depth), 1), 255, np.uint8)], axis=1)
+
+
+def patches_to_mesh(octree: Octree, color_by_depth: bool = False, world: bool = True):
+    """A trimesh of all leaf patches, in the input's coordinates (one shape) unless ``world`` is False."""
+    import trimesh
+
+    m = patch_mesh(octree, world)
+    colors = depth_colors(m.vertex_depth[m.faces[:, 0]]) if color_by_depth and len(m.faces) else None
+    return trimesh.Trimesh(vertices=m.vertices, faces=m.faces, face_colors=colors, process=False)

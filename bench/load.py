@@ -1,0 +1,137 @@
+"""Load test of the service: uvicorn on 127.0.0.1, an asyncio httpx client, fixed duration.
+
+Starts ``python -m service`` on a free port (the bundled models unless ``--models-dir``), waits
+for /readyz, then for each concurrency level keeps that many requests in flight for
+``--seconds`` and reports p50/p95/p99 latency, throughput, errors (non-2xx), the server's RSS at
+the start and end of the run (sampled every second from /proc), and the share of request time
+spent outside the model (1 - (encoder + decoder) / latency, from the Server-Timing header).
+
+    python -m bench.load [--endpoint image-to-shape] [--input examples/chair_photo.jpg]
+                         [--concurrency 1 4] [--seconds 60] [--env AOCNN_CONCURRENCY=1 ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import socket
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+
+FIELDS = {"image-to-shape": "image", "complete": "points", "octree": "shape"}
+TARGET_OUTSIDE = 0.15
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def _model_seconds(timing: str) -> float:
+    out = 0.0
+    for part in timing.split(","):
+        name, _, dur = part.strip().partition(";dur=")
+        if name in ("encoder", "decoder") and dur:
+            out += float(dur) / 1e3
+    return out
+
+
+async def _run(url: str, field: str, data: bytes, name: str, concurrency: int, seconds: float, pid: int) -> dict:
+    lat, outside, errors, codes = [], [], 0, {}
+    rss = [_rss_mb(pid)]
+    stop = time.perf_counter() + seconds
+
+    async def worker(client: httpx.AsyncClient):
+        nonlocal errors
+        while time.perf_counter() < stop:
+            t = time.perf_counter()
+            r = await client.post(url, files={field: (name, data)})
+            dt = time.perf_counter() - t
+            codes[r.status_code] = codes.get(r.status_code, 0) + 1
+            if r.status_code != 200:
+                errors += 1
+                continue
+            lat.append(dt)
+            outside.append(1 - _model_seconds(r.headers.get("server-timing", "")) / dt)
+
+    async def sample():
+        while time.perf_counter() < stop:
+            await asyncio.sleep(1)
+            rss.append(_rss_mb(pid))
+
+    async with httpx.AsyncClient(timeout=120, limits=httpx.Limits(max_connections=concurrency + 2)) as client:
+        t0 = time.perf_counter()
+        await asyncio.gather(sample(), *[worker(client) for _ in range(concurrency)])
+        wall = time.perf_counter() - t0
+    q = statistics.quantiles(lat, n=100) if len(lat) >= 2 else [float("nan")] * 99
+    return {"concurrency": concurrency, "requests": len(lat) + errors, "errors": errors, "codes": codes,
+            "throughput_rps": len(lat) / wall, "p50_ms": 1e3 * q[49], "p95_ms": 1e3 * q[94], "p99_ms": 1e3 * q[98],
+            "outside_model_share": statistics.mean(outside) if outside else float("nan"),
+            "rss_start_mb": rss[0], "rss_end_mb": rss[-1], "rss_max_mb": max(rss)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench.load", description=__doc__.splitlines()[0])
+    ap.add_argument("--endpoint", choices=sorted(FIELDS), default="image-to-shape", help="default image-to-shape")
+    ap.add_argument("--input", default="examples/chair_photo.jpg", help="file to upload (default the example photo)")
+    ap.add_argument("--concurrency", type=int, nargs="+", default=[1, 4], help="requests in flight (default 1 4)")
+    ap.add_argument("--seconds", type=float, default=60, help="duration per concurrency level (default 60)")
+    ap.add_argument("--models-dir", default=None, help="bundles to serve (default the bundled ones)")
+    ap.add_argument("--env", nargs="*", default=[], help="AOCNN_*=value settings for the server")
+    ap.add_argument("--json", default=None, help="also write the figures here (default: none)")
+    args = ap.parse_args(argv)
+    port = _free_port()
+    env = {**os.environ, **dict(e.split("=", 1) for e in args.env), "AOCNN_PORT": str(port)}
+    if args.models_dir:
+        env["AOCNN_MODELS_DIR"] = args.models_dir
+    server = subprocess.Popen([sys.executable, "-m", "service"], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.PIPE)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        for _ in range(120):
+            try:
+                if httpx.get(f"{base}/readyz", timeout=1).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            if server.poll() is not None:
+                print(server.stderr.read().decode(), file=sys.stderr)
+                return 1
+            time.sleep(0.5)
+        data = Path(args.input).read_bytes()
+        rows = [asyncio.run(_run(f"{base}/v1/{args.endpoint}", FIELDS[args.endpoint], data, Path(args.input).name,
+                                 c, args.seconds, server.pid)) for c in args.concurrency]
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+    print(f"{args.endpoint}, {args.input}, {args.seconds:g} s per level, server env {args.env or 'defaults'}")
+    print(f"{'conc':>4} {'req':>6} {'err':>4} {'rps':>7} {'p50 ms':>8} {'p95 ms':>8} {'p99 ms':>8} "
+          f"{'outside model':>13} {'RSS start/end/max MB':>22}")
+    for r in rows:
+        print(f"{r['concurrency']:>4} {r['requests']:>6} {r['errors']:>4} {r['throughput_rps']:>7.2f} "
+              f"{r['p50_ms']:>8.1f} {r['p95_ms']:>8.1f} {r['p99_ms']:>8.1f} {r['outside_model_share']:>13.0%} "
+              f"{r['rss_start_mb']:>8.0f}/{r['rss_end_mb']:.0f}/{r['rss_max_mb']:.0f}")
+    print(f"targets: 0 errors and flat memory at concurrency 2x the CPUs; time outside the model <= "
+          f"{TARGET_OUTSIDE:.0%} for image -> shape")
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
