@@ -52,10 +52,14 @@ def available_cpus(cgroup_root: Path = Path("/sys/fs/cgroup")) -> int:
     return max(1, cpus)
 
 
-def session_options(threads: int) -> ort.SessionOptions:
+def session_options(threads: int, spinning: bool = True) -> ort.SessionOptions:
     """One session's options: ``threads`` intra-op threads, full graph optimisation, no memory
-    pattern planning (node counts change on every call, so plans would not be reused)."""
+    pattern planning (node counts change on every call, so plans would not be reused).
+    ``spinning`` False stops idle intra-op threads from busy-waiting for work (a server whose
+    other threads parse requests and build octrees wants the CPU back)."""
     so = ort.SessionOptions()
+    if not spinning:
+        so.add_session_config_entry("session.intra_op.allow_spinning", "0")
     so.intra_op_num_threads = threads
     so.inter_op_num_threads = 1
     so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
@@ -82,9 +86,9 @@ def _check_io(spec: GraphSpec, session: ort.InferenceSession, path: Path) -> Non
 class Runtime:
     """The onnxruntime sessions of one verified bundle (thread-safe: sessions may run concurrently)."""
 
-    def __init__(self, bundle: Bundle, threads: int | None = None):
+    def __init__(self, bundle: Bundle, threads: int | None = None, spinning: bool = True):
         self.bundle, self.threads = bundle, threads or available_cpus()
-        options = session_options(self.threads)
+        options = session_options(self.threads, spinning)
         self.sessions: dict[str, ort.InferenceSession] = {}
         for name, spec in bundle.graphs.items():
             path = bundle.file(name)

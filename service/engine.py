@@ -21,7 +21,7 @@ from export.bundle import Bundle, BundleError, load_bundle
 from export.runtime import Runtime, available_cpus
 from model.decode import DECODED_NORMALIZATION
 from model.octree import build_octree
-from model.octree.batch import split_octree
+from model.octree.batch import merge_octrees, split_octree
 
 from .errors import APIError
 from .inputs import image_input, shape_input
@@ -34,6 +34,18 @@ log = logging.getLogger("service")
 
 class StartupError(RuntimeError):
     """The service cannot start: the message names the bundle and the problem."""
+
+
+@dataclass
+class Request:
+    """One request's input and output choices, as the batch functions take them."""
+
+    data: bytes
+    fmt: str
+    depth: int | None
+    color: bool
+    timer: StageTimer
+    filename: str | None = None
 
 
 @dataclass
@@ -123,7 +135,7 @@ class Engine:
         for folder in folders:
             try:
                 bundle = load_bundle(folder)
-                served = Served(bundle, Runtime(bundle, threads=self.threads))
+                served = Served(bundle, Runtime(bundle, threads=self.threads, spinning=self.settings.spinning))
             except BundleError as exc:
                 raise StartupError(f"bundle {folder.name}: {exc}") from None
             if bundle.task in self.models:
@@ -131,6 +143,10 @@ class Engine:
                                    f"serve {bundle.task}; keep one")
             self.models[bundle.task] = served
         self.limiter = Limiter(self.concurrency, self.settings.queue, self.metrics)
+        from .batching import Batcher
+        st = self.settings
+        self.batchers = {task: Batcher(fn, self.limiter, st.batch_window_ms / 1e3, st.max_batch, st.timeout_s)
+                         for task, fn in (("image-to-shape", self.image_batch), ("completion", self.complete_batch))}
 
     def warm_up(self) -> None:
         """One inference per model (first calls allocate and optimise); then the service is ready."""
@@ -166,34 +182,66 @@ class Engine:
         return depth
 
     # -- the blocking work of each endpoint (runs in the limiter's threads) -----------------
-    def image_to_shape(self, data: bytes, fmt: str, depth: int | None, color: bool, timer: StageTimer) -> MeshFile:
+    def image_batch(self, items: list[Request]) -> list[MeshFile | APIError]:
+        """Photos -> meshes, encoded and decoded as one batch; a bad input fails only its own item."""
         served = self.model("image-to-shape")
-        depth = self.check_depth(served, depth)
-        with timer("decode_input"):
-            x = image_input(data, served.bundle.image_spec(), self.settings.max_image_pixels)
-        with timer("encoder"):
-            latent = served.runtime.encode_image(x[None])
-        with timer("decoder"):
-            octree = served.runtime.decode(latent, depth)
-        octree.normalizations = [DECODED_NORMALIZATION]
-        return _mesh(octree, fmt, color, timer)
+        spec = served.bundle.image_spec()
 
-    def complete(self, data: bytes, filename: str | None, fmt: str, depth: int | None, color: bool,
-                 timer: StageTimer) -> MeshFile:
+        def prepare(item: Request):
+            with item.timer("decode_input"):
+                return image_input(item.data, spec, self.settings.max_image_pixels)
+
+        def encode(inputs):
+            return served.runtime.encode_image(np.stack(inputs))
+
+        return self._batch(served, items, prepare, encode, lambda _: DECODED_NORMALIZATION)
+
+    def complete_batch(self, items: list[Request]) -> list[MeshFile | APIError]:
+        """Partial scans -> completed meshes in each scan's frame, as one batch."""
         served = self.model("completion")
         o = served.bundle.octree
-        depth = self.check_depth(served, depth)
-        with timer("decode_input"):
-            loaded = shape_input(data, filename, o.depth, self.settings.max_points, self.settings.max_npz_bytes)
-        with timer("octree_build"):
-            tree = build_octree(loaded.cloud, o.depth, adaptive=o.adaptive, full_depth=o.full_depth,
-                                adaptive_depth=o.adaptive_depth, **({"threshold": o.threshold} if o.threshold else {}))
-        with timer("encoder"):
-            latent = served.runtime.encode_octree(tree)
-        with timer("decoder"):
-            octree = served.runtime.decode(latent, depth)
-        octree.normalizations = tree.normalizations        # back to the input's own frame
-        return _mesh(octree, fmt, color, timer)
+
+        def prepare(item: Request):
+            with item.timer("decode_input"):
+                loaded = shape_input(item.data, item.filename, o.depth, self.settings.max_points,
+                                     self.settings.max_npz_bytes)
+            with item.timer("octree_build"):
+                return build_octree(loaded.cloud, o.depth, adaptive=o.adaptive, full_depth=o.full_depth,
+                                    adaptive_depth=o.adaptive_depth,
+                                    **({"threshold": o.threshold} if o.threshold else {}))
+
+        def encode(trees):
+            return served.runtime.encode_octree(merge_octrees(trees))
+
+        return self._batch(served, items, prepare, encode, lambda tree: tree.normalizations[0])
+
+    def _batch(self, served: Served, items: list[Request], prepare, encode, frame) -> list[MeshFile | APIError]:
+        out: list = [None] * len(items)
+        ready = []
+        for i, item in enumerate(items):
+            try:
+                item.depth = self.check_depth(served, item.depth)
+                ready.append((i, prepare(item)))
+            except APIError as exc:
+                out[i] = exc
+        if not ready:
+            return out
+        t = time.perf_counter()
+        latent = encode([x for _, x in ready])
+        _share([items[i] for i, _ in ready], "encoder", time.perf_counter() - t)
+        for depth in sorted({items[i].depth for i, _ in ready}):
+            group = [k for k, (i, _) in enumerate(ready) if items[i].depth == depth]
+            t = time.perf_counter()
+            decoded = split_octree(served.runtime.decode(latent[group], depth), neighbors=False)
+            _share([items[ready[k][0]] for k in group], "decoder", time.perf_counter() - t)
+            for k, tree in zip(group, decoded):
+                i, x = ready[k]
+                tree.normalizations = [frame(x)]
+                try:
+                    out[i] = _mesh(tree, items[i].fmt, items[i].color, items[i].timer)
+                except APIError as exc:
+                    out[i] = exc
+        return out
 
     def octree(self, data: bytes, filename: str | None, depth: int, threshold: float | None, full: bool, fmt: str,
                color: bool, timer: StageTimer) -> MeshFile:
@@ -207,11 +255,16 @@ class Engine:
 
 def _mesh(octree, fmt: str, color: bool, timer: StageTimer) -> MeshFile:
     with timer("mesh_encode"):
-        single = split_octree(octree, neighbors=False)[0] if octree.batch_size > 1 else octree
-        if not any(single.leaves_per_depth()):
+        if not any(octree.leaves_per_depth()):
             raise APIError(422, "empty_output", "the model decoded no surface from this input",
                            "send a photo or scan of one object, centred, on a plain background")
-        return encode_mesh(single, fmt, color)
+        return encode_mesh(octree, fmt, color)
+
+
+def _share(items: list[Request], stage: str, seconds: float) -> None:
+    """A batch stage's time, charged to each request of the batch (its latency includes all of it)."""
+    for item in items:
+        item.timer.add(stage, seconds)
 
 
 def _sphere(n: int = 4000) -> tuple[np.ndarray, np.ndarray]:

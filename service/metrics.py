@@ -21,6 +21,8 @@ class Metrics:
         self.latency = Histogram("aocnn_request_seconds", "request latency", ["endpoint"], buckets=LATENCY_BUCKETS, registry=r)
         self.stage = Histogram("aocnn_stage_seconds", "time per inference stage", ["stage"], buckets=LATENCY_BUCKETS, registry=r)
         self.queue = Histogram("aocnn_queue_seconds", "time waiting for an inference slot", buckets=LATENCY_BUCKETS, registry=r)
+        self.batch = Histogram("aocnn_batch_size", "requests per dynamic batch", buckets=(1, 2, 4, 8, 16, 32, 64),
+                               registry=r)
         self.in_flight = Gauge("aocnn_inferences_in_flight", "inferences running now", registry=r)
         self.waiting = Gauge("aocnn_inferences_waiting", "requests waiting for an inference slot", registry=r)
 
@@ -37,9 +39,11 @@ class StageTimer:
         try:
             yield
         finally:
-            dt = time.perf_counter() - t
-            self.seconds[stage] = self.seconds.get(stage, 0.0) + dt
-            self.metrics.stage.labels(stage).observe(dt)
+            self.add(stage, time.perf_counter() - t)
+
+    def add(self, stage: str, seconds: float) -> None:
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + seconds
+        self.metrics.stage.labels(stage).observe(seconds)
 
     def header(self) -> str:
         return ", ".join(f"{k};dur={1e3 * v:.1f}" for k, v in self.seconds.items())

@@ -21,6 +21,10 @@ class Settings(BaseSettings):
     threads: int | None = Field(None, ge=1, description="onnxruntime intra-op threads per inference "
                                 "(default: the CPUs the process may use / concurrency)")
     concurrency: int | None = Field(None, ge=1, description="inferences run at once (default: 1 per 2 CPUs, at least 1)")
+    spinning: bool = Field(False, description="let idle onnxruntime threads busy-wait for work (measured: bench.load)")
+    batch_window_ms: float = Field(0.0, ge=0, le=1000, description="dynamic batching: wait this long for more "
+                                   "requests to batch with (0: off; measured: bench.load)")
+    max_batch: int = Field(8, ge=1, le=64, description="largest dynamic batch")
     queue: int = Field(16, ge=0, description="requests that may wait for an inference slot; more get 503")
     timeout_s: float = Field(60.0, gt=0, description="a request that has not finished by then gets 504")
     max_body_bytes: int = Field(32 << 20, ge=1024, description="request body size limit (413 above)")

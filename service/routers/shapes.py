@@ -7,7 +7,7 @@ from fastapi import APIRouter, Depends, File, Header, Query, UploadFile
 from fastapi.responses import Response
 
 from ..deps import engine, require_key
-from ..engine import Engine
+from ..engine import Engine, Request
 from ..errors import ERROR_RESPONSES, APIError
 from ..meshes import FORMATS, MeshFile, choose_format
 from ..metrics import StageTimer
@@ -36,18 +36,24 @@ async def _read(upload: UploadFile) -> tuple[bytes, str | None]:
     return await upload.read(), upload.filename
 
 
+async def _submit(eng: Engine, task: str, request: Request) -> MeshFile:
+    """Through the task's dynamic batcher; a request's own error is raised for it alone."""
+    result = await eng.batchers[task].submit(request)
+    if isinstance(result, Exception):
+        raise result
+    return result
+
+
 @router.post("/image-to-shape", response_class=Response, responses=MESH_RESPONSE,
              summary="A photo of one object -> its 3D shape as a patch mesh")
 async def image_to_shape(image: UploadFile = File(..., description="PNG, JPEG, WebP, GIF, BMP or TIFF of one object"),
                          format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q,
                          color_by_depth: bool = COLOR_Q, accept: str | None = Header(None),
                          eng: Engine = Depends(engine)) -> Response:
+    b = eng.model("image-to-shape").bundle
     data, _ = await _read(image)
-    fmt = choose_format(format, accept)
     timer = StageTimer(eng.metrics)
-    mesh = await eng.limiter.run(lambda: eng.image_to_shape(data, fmt, depth, color_by_depth, timer),
-                                 eng.settings.timeout_s)
-    b = eng.models["image-to-shape"].bundle
+    mesh = await _submit(eng, "image-to-shape", Request(data, choose_format(format, accept), depth, color_by_depth, timer))
     return mesh_response(mesh, "shape", timer, b.name, b.version)
 
 
@@ -57,12 +63,11 @@ async def complete(points: UploadFile = File(..., description="PLY (ascii/binary
                                               "vertices, with or without normals"),
                    format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q, color_by_depth: bool = COLOR_Q,
                    accept: str | None = Header(None), eng: Engine = Depends(engine)) -> Response:
+    b = eng.model("completion").bundle
     data, filename = await _read(points)
-    fmt = choose_format(format, accept)
     timer = StageTimer(eng.metrics)
-    mesh = await eng.limiter.run(lambda: eng.complete(data, filename, fmt, depth, color_by_depth, timer),
-                                 eng.settings.timeout_s)
-    b = eng.models["completion"].bundle
+    mesh = await _submit(eng, "completion",
+                         Request(data, choose_format(format, accept), depth, color_by_depth, timer, filename))
     return mesh_response(mesh, "completed", timer, b.name, b.version)
 
 

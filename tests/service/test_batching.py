@@ -1,0 +1,73 @@
+"""Dynamic batching: concurrent requests within the window run as one batch, each gets its own
+answer (or its own error), batches respect max_batch, and batched answers equal single ones."""
+
+from __future__ import annotations
+
+import asyncio
+import io
+from concurrent.futures import ThreadPoolExecutor
+
+import pytest
+import trimesh
+
+from service.batching import Batcher
+from service.engine import Limiter
+from service.errors import APIError
+from service.metrics import Metrics
+
+from .conftest import make_client
+from .test_api import photo
+
+
+def test_requests_within_the_window_share_one_batch_and_keep_their_own_errors():
+    calls = []
+
+    def run(requests):
+        calls.append(list(requests))
+        return [APIError(400, "bad", f"bad {r}", "fix it") if r < 0 else r * 10 for r in requests]
+
+    async def scenario():
+        b = Batcher(run, Limiter(1, 4, Metrics()), window_s=0.05, max_batch=3, timeout=5)
+        results = await asyncio.gather(*[b.submit(r) for r in (1, -2, 3, 4)], return_exceptions=True)
+        assert results[0] == 10 and results[2] == 30 and results[3] == 40
+        assert isinstance(results[1], APIError) and results[1].message == "bad -2"
+        assert [len(c) for c in calls] == [3, 1]                 # max_batch 3, then the rest
+        calls.clear()
+        off = Batcher(run, Limiter(1, 4, Metrics()), window_s=0, max_batch=8, timeout=5)
+        assert await asyncio.gather(off.submit(1), off.submit(2)) == [10, 20]
+        assert [len(c) for c in calls] == [1, 1]                 # window 0: no batching
+    asyncio.run(scenario())
+
+
+def test_a_failing_batch_fails_each_of_its_requests_once():
+    def run(requests):
+        raise RuntimeError("boom")
+
+    async def scenario():
+        b = Batcher(run, Limiter(1, 4, Metrics()), window_s=0.02, max_batch=8, timeout=5)
+        results = await asyncio.gather(b.submit(1), b.submit(2), return_exceptions=True)
+        assert all(isinstance(r, RuntimeError) for r in results)
+    asyncio.run(scenario())
+
+
+@pytest.mark.parametrize("window", [0, 300])
+def test_concurrent_requests_get_the_same_meshes_batched_or_not(models_dir, window):
+    images = [photo(seed) for seed in range(4)]
+    with make_client(models_dir) as single:
+        want = [single.post("/v1/image-to-shape?format=ply", files={"image": ("p.png", im)}) for im in images]
+    with make_client(models_dir, batch_window_ms=window, max_batch=4) as c:
+        def post(im):
+            return c.post("/v1/image-to-shape?format=ply", files={"image": ("p.png", im)})
+        with ThreadPoolExecutor(4) as pool:
+            got = list(pool.map(post, images + [b"not an image"]))
+        text = c.get("/metrics").text
+    assert got[-1].status_code == 415                       # the bad one fails alone
+    for g, w in zip(got, want):
+        assert g.status_code == 200 == w.status_code
+        a = trimesh.load(io.BytesIO(g.content), file_type="ply", process=False)
+        b = trimesh.load(io.BytesIO(w.content), file_type="ply", process=False)
+        assert a.area == pytest.approx(b.area, rel=1e-3)
+        assert g.headers["x-octree-leaves"] == w.headers["x-octree-leaves"]
+    batches = float(text.split("aocnn_batch_size_count ")[1].split()[0])
+    assert float(text.split("aocnn_batch_size_sum ")[1].split()[0]) == 5
+    assert batches == 5 if window == 0 else batches < 5     # one batch per request, or shared batches
