@@ -108,10 +108,12 @@ def object_box(rgba: np.ndarray, tolerance: int = 24) -> tuple[int, int, int, in
     if alpha.min() < 250:
         mask = alpha >= 128
     else:
-        rgb = rgba[..., :3].astype(np.int16)
+        rgb = rgba[..., :3]
         border = np.concatenate([rgb[0], rgb[-1], rgb[:, 0], rgb[:, -1]])
-        ref = np.median(border, axis=0)
-        mask = np.abs(rgb - ref).max(axis=2) > tolerance
+        ref = np.median(border, axis=0).astype(np.float32)       # exact: integers or halves
+        mask = np.zeros(rgb.shape[:2], bool)
+        for c in range(3):                                       # per channel: max over a 3-axis is slow
+            mask |= np.abs(rgb[..., c] - ref[c]) > tolerance
     rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
     if len(rows) == 0:
         return None
@@ -136,28 +138,30 @@ def prepare_image(rgba: np.ndarray, spec: ImageSpec, keep_background: bool = Fal
     if rgba[..., 3].max() == 0:
         raise ImageError("the image is fully transparent: there is no object to reconstruct")
     box = object_box(rgba, spec.border_tolerance)
-    if keep_background:
-        rgb = rgba[..., :3].astype(np.float32)
-    else:
-        a = rgba[..., 3:4].astype(np.float32) / 255.0
-        rgb = rgba[..., :3].astype(np.float32) * a + np.asarray(spec.background, np.float32) * (1 - a)
-    h, w = rgb.shape[:2]
+    h, w = rgba.shape[:2]
     top, left, bottom, right = box if box is not None else (0, 0, h, w)
     side = max(bottom - top, right - left)
     full = side + 2 * int(round(side * spec.margin / max(1e-6, 1 - 2 * spec.margin)))
     y0 = top - (full - (bottom - top)) // 2            # the square around the crop, image coordinates
     x0 = left - (full - (right - left)) // 2
-    pads = ((max(0, -y0), max(0, y0 + full - h)), (max(0, -x0), max(0, x0 + full - w)), (0, 0))
-    if keep_background or rgba[..., 3].min() >= 250:
-        # an opaque photo: the real surroundings, the image's edges extended beyond its border
-        padded = np.pad(rgb, pads, mode="edge")
+    ys, ye, xs, xe = max(0, y0), min(h, y0 + full), max(0, x0), min(w, x0 + full)
+    part = rgba[ys:ye, xs:xe]                           # only the square's pixels are converted
+    opaque = keep_background or rgba[..., 3].min() >= 250
+    if keep_background or part[..., 3].min() == 255:
+        rgb = part[..., :3]                             # compositing would change nothing
     else:
-        padded = np.pad(rgb, pads, mode="constant")
-        padded[:pads[0][0]], padded[padded.shape[0] - pads[0][1]:] = spec.background, spec.background
-        padded[:, :pads[1][0]], padded[:, padded.shape[1] - pads[1][1]:] = spec.background, spec.background
-    y0, x0 = y0 + pads[0][0], x0 + pads[1][0]
-    canvas = padded[y0:y0 + full, x0:x0 + full]
-    img = Image.fromarray(np.clip(canvas.round(), 0, 255).astype(np.uint8), "RGB")
+        a = part[..., 3:4].astype(np.float32) / 255.0
+        rgb = part[..., :3].astype(np.float32) * a + np.asarray(spec.background, np.float32) * (1 - a)
+        rgb = np.clip(rgb.round(), 0, 255).astype(np.uint8)
+    pads = ((ys - y0, y0 + full - ye), (xs - x0, x0 + full - xe), (0, 0))
+    if opaque:
+        # an opaque photo: the real surroundings, the image's edges extended beyond its border
+        canvas = np.pad(rgb, pads, mode="edge")
+    else:
+        canvas = np.empty((full, full, 3), np.uint8)
+        canvas[:] = np.asarray(spec.background, np.uint8)
+        canvas[pads[0][0]:full - pads[0][1], pads[1][0]:full - pads[1][1]] = rgb
+    img = Image.fromarray(np.ascontiguousarray(canvas), "RGB")
     img = img.resize((spec.size, spec.size), Image.Resampling.BOX if full >= spec.size else Image.Resampling.BILINEAR)
     x = np.asarray(img, np.float32) / 255.0
     x = (x - np.asarray(spec.mean, np.float32)) / np.asarray(spec.std, np.float32)
