@@ -19,6 +19,8 @@ _EDGES = np.array(
     [(a, b) for a in range(8) for b in range(a + 1, 8)
      if np.abs(_CORNERS[a] - _CORNERS[b]).sum() == 1.0]
 )
+_EDGE_START = _CORNERS[_EDGES[:, 0]]
+_EDGE_DIR = _CORNERS[_EDGES[:, 1]] - _CORNERS[_EDGES[:, 0]]
 
 
 def symmetric_eigen(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -149,20 +151,20 @@ def cube_polygons(normal: np.ndarray, offset: np.ndarray, size: np.ndarray | flo
     last vertex) and the vertex counts (M,); a count of 0 means the plane misses the cube.
     """
     size = np.broadcast_to(np.asarray(size, dtype=np.float64), offset.shape)
-    corners = _CORNERS[None] * size[:, None, None]                     # (M, 8, 3)
-    f = np.einsum("mkj,mj->mk", corners, normal) + offset[:, None]     # (M, 8)
+    s3 = size[:, None, None]
+    f = (_CORNERS @ normal.T).T * size[:, None] + offset[:, None]     # (M, 8)
     tol = 1e-12 * size[:, None]
     on = np.abs(f) <= tol
     fa, fb = f[:, _EDGES[:, 0]], f[:, _EDGES[:, 1]]
     cross = ((fa > tol) & (fb < -tol)) | ((fa < -tol) & (fb > tol))
     t = fa / np.where(cross, fa - fb, 1.0)
-    pa, pb = corners[:, _EDGES[:, 0]], corners[:, _EDGES[:, 1]]
-    cand = np.concatenate([corners, pa + t[..., None] * (pb - pa)], axis=1)  # (M, 20, 3)
+    # corners and edge crossings of the unit cube, scaled: (M, 20, 3)
+    cand = np.concatenate([np.broadcast_to(_CORNERS, (len(f), 8, 3)),
+                           _EDGE_START + t[..., None] * _EDGE_DIR], axis=1) * s3
     valid = np.concatenate([on, cross], axis=1)
     count = valid.sum(1)
     u, v = plane_basis(normal)
-    w = np.where(valid[..., None], cand, 0.0)
-    centre = w.sum(1) / np.maximum(count, 1)[:, None]
+    centre = np.einsum("mk,mkj->mj", valid.astype(np.float64), cand) / np.maximum(count, 1)[:, None]
     rel = cand - centre[:, None]
     ang = np.arctan2(np.einsum("mkj,mj->mk", rel, v), np.einsum("mkj,mj->mk", rel, u))
     order = np.argsort(np.where(valid, ang, np.inf), axis=1)[:, :MAX_POLYGON]
