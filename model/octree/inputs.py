@@ -86,8 +86,14 @@ def _read_npy(path: str) -> np.ndarray:
         arr = np.load(path, allow_pickle=False)
     except (ValueError, OSError) as exc:
         raise OctreeInputError(f"{path}: not a readable .npy array ({exc})") from None
-    if not np.issubdtype(arr.dtype, np.number):
-        raise OctreeInputError(f"{path}: the array holds {arr.dtype}, not numbers")
+    return _real(arr, path, "the array")
+
+
+def _real(arr: np.ndarray, path: str, what: str) -> np.ndarray:
+    """``arr`` as float64 if it holds real numbers (integers or floats); complex, strings,
+    booleans and objects are refused rather than cast."""
+    if not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
+        raise OctreeInputError(f"{path}: {what} holds {arr.dtype} values, not real numbers")
     return arr.astype(np.float64)
 
 
@@ -101,10 +107,10 @@ def _read_npz(path: str) -> LoadedInput:
     if pkey is None:
         raise OctreeInputError(f"{path}: needs an array named 'points' (found {names})")
     nkey = next((k for k in ("normals", "normal", "nrm") if k in names), None)
-    pts = np.asarray(data[pkey], dtype=np.float64)
+    pts = _real(np.asarray(data[pkey]), path, f"'{pkey}'")
     if nkey is None:
         return _points(pts, path)
-    nrm = np.asarray(data[nkey], dtype=np.float64)
+    nrm = _real(np.asarray(data[nkey]), path, f"'{nkey}'")
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise OctreeInputError(f"{path}: '{pkey}' must be (N, 3), got {pts.shape}")
     return LoadedInput(validate(pts, nrm), "points", None, False)

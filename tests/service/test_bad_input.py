@@ -72,6 +72,12 @@ def test_missing_or_wrong_fields_and_bad_parameters(client):
     _err(client.get("/v1/image-to-shape"), 405)
 
 
+def _npz_bytes(**arrays) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
 def _object_npy() -> bytes:
     buf = io.BytesIO()
     np.save(buf, np.array([{"a": 1}, None], dtype=object), allow_pickle=True)
@@ -98,7 +104,9 @@ POINTS = {
     "empty file": (b"", 400),
     "pickled object array": (_object_npy(), 400),
     "raw pickle": (pickle.dumps(Boom()), 400),
-    "complex dtype": (_npy(np.ones((100, 3), np.complex64)), 400),
+    "complex dtype": (_npy((_sphere() + 1j).astype(np.complex64)), 400),
+    "complex dtype in an NPZ": (_npz_bytes(points=_sphere() + 1j), 400),
+    "boolean dtype": (_npy(_sphere() > 0), 400),
     "string dtype": (_npy(np.array([["a", "b", "c"]] * 10)), 400),
     "NaN coordinates": (_npy(np.vstack([_sphere(), [[np.nan, 0, 0]]])), 400),
     "infinite coordinates": (_npy(np.vstack([_sphere(), [[np.inf, 0, 0]]])), 400),
