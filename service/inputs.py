@@ -55,9 +55,11 @@ def sniff(data: bytes, filename: str | None) -> str:
     text = head.lstrip()
     if text.startswith(b"OFF"):
         return "off"
+    if len(data) >= 84 and 84 + 50 * int.from_bytes(data[80:84], "little") == len(data):
+        return "stl"                                     # binary STL: its size is fixed by its count
     if text.startswith(b"solid") or ext == "stl":
         return "stl"
-    if text.startswith(b"{") and ext == "gltf":
+    if text.startswith(b"{") and (ext == "gltf" or b'"asset"' in data[:65536]):
         return "gltf"
     if re.search(rb"^\s*(v|vn|f|o|g|mtllib)\s", head, re.M) and not re.match(rb"^\s*[-+.\d]", text):
         return "obj"

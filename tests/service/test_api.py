@@ -147,6 +147,16 @@ def test_octree_endpoint_builds_the_adaptive_octree_of_a_mesh(client):
     assert set(dict(p.split(":") for p in full.headers["x-octree-leaves"].split(","))) == {"5"}
 
 
+@pytest.mark.parametrize("fmt", ["stl", "off", "ply", "glb", "obj"])
+def test_octree_endpoint_recognises_meshes_by_their_bytes_whatever_the_file_name(client, fmt):
+    data = trimesh.creation.box(extents=(2.0, 1.0, 0.5)).export(file_type=fmt)
+    data = data.encode() if isinstance(data, str) else data
+    r = client.post("/v1/octree?depth=4&format=ply", files={"shape": ("upload.bin", data)})
+    assert r.status_code == 200, (fmt, r.text)
+    mesh = trimesh.load(io.BytesIO(r.content), file_type="ply", process=False)
+    assert np.allclose(mesh.bounds, [[-1, -0.5, -0.25], [1, 0.5, 0.25]], atol=0.05)
+
+
 def test_openapi_documents_every_endpoint_with_its_models(client):
     spec = client.get("/openapi.json").json()
     for path in ("/v1/image-to-shape", "/v1/complete", "/v1/octree", "/v1/classify", "/v1/models",
