@@ -101,7 +101,7 @@ def shape_input(data: bytes, filename: str | None, depth: int, max_points: int, 
         try:
             loaded = load_input(str(path), depth)
         except OctreeInputError as exc:
-            message = str(exc).replace(str(path), f"the {fmt.upper()} upload")
+            message = str(exc).replace(str(path), f"the {fmt.upper()} upload").replace(tmp, "the upload folder")
             raise APIError(400, "invalid_points", message,
                            "send a point cloud (PLY, XYZ/TXT, NPY, NPZ, OBJ vertices) or a mesh with real "
                            "coordinates") from None

@@ -133,6 +133,26 @@ def test_bad_point_clouds(client, case):
     assert not [f for f in set(os.listdir(tempfile.gettempdir())) - before if f.startswith("aocnn-")]
 
 
+def test_uploads_cannot_make_the_server_read_its_own_files(client):
+    """A glTF whose buffer points at a server file, an OBJ whose material library is /dev/zero:
+    nothing outside the upload is read (no hang on /dev/zero), and no server path is echoed."""
+    import json as _json
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "mode": 4}]}],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                          "min": [0, 0, 0], "max": [1, 1, 0]}],
+           "bufferViews": [{"buffer": 0, "byteLength": 36}]}
+    for uri in ("/dev/zero", "../../../../etc/hostname", "file:///etc/hostname"):
+        doc["buffers"] = [{"byteLength": 36, "uri": uri}]
+        r = client.post("/v1/octree?depth=4", files={"shape": ("x.gltf", _json.dumps(doc).encode())})
+        body = _err(r, 400, "invalid_points")
+        assert tempfile.gettempdir() not in body["message"]
+    obj = b"mtllib /dev/zero\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n"
+    t = time.perf_counter()
+    assert client.post("/v1/octree?depth=4", files={"shape": ("x.obj", obj)}).status_code == 200
+    assert time.perf_counter() - t < 10
+
+
 def test_zip_bomb_npz_is_refused_from_its_directory(models_dir):
     buf = io.BytesIO()
     np.savez_compressed(buf, points=np.zeros((3_000_000, 3)))           # 72 MB unpacked, ~70 kB packed
