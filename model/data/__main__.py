@@ -4,6 +4,13 @@
                               [--categories chair table ...] [--views 24] [--partial 2]
     python -m model.data build --out DIR --source modelnet40|shapenet|r2n2 --root PATH
                               [--shapenet-root PATH] [--per-category N] --depth D ...
+    python -m model.data build ... --shard K/N        (part K of N, 0 <= K < N; one job each)
+    python -m model.data merge --out DIR SHARD_DIR [SHARD_DIR ...]
+
+A cluster builds one dataset as N independent jobs (a Kubernetes Indexed Job passes
+``--shard $JOB_COMPLETION_INDEX/N``, a SLURM array ``--shard $SLURM_ARRAY_TASK_ID/N``), each
+writing its records and ``manifest.shard-K-of-N.json``; ``merge`` checks the shards and writes
+the manifest a single build would have written.
 """
 
 from __future__ import annotations
@@ -13,7 +20,7 @@ import os
 import sys
 import time
 
-from .dataset import SOURCES, BuildConfig, build_dataset, layout_tasks, procedural_tasks
+from .dataset import SOURCES, BuildConfig, Shard, build_dataset, layout_tasks, merge_shards, procedural_tasks
 from .shapes import CATEGORIES
 
 
@@ -37,11 +44,20 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     b.add_argument("--render-size", type=int, default=137, help="render side in pixels (default 137, 3D-R2N2's)")
     b.add_argument("--partial", type=int, default=2, help="partial scans per shape (default 2)")
     b.add_argument("--scan-resolution", type=int, default=160, help="rays per side of each scanner view (default 160)")
+    b.add_argument("--shard", default=None, help="build only part K of N (K/N, 0 <= K < N) and write "
+                   "manifest.shard-K-of-N.json; join the parts with merge (default: the whole dataset)")
     b.add_argument("--quiet", action="store_true", help="no progress bar")
+    m = sub.add_parser("merge", help="join shard builds (--shard K/N) into one dataset and its manifest")
+    m.add_argument("--out", required=True, help="dataset folder for the merged manifest (records are copied "
+                   "there from shard folders elsewhere)")
+    m.add_argument("shards", nargs="+", help="folders holding manifest.shard-K-of-N.json and their records")
     return ap.parse_args(argv)
 
 
 def run(args: argparse.Namespace) -> dict:
+    if args.command == "merge":
+        return merge_shards(args.out, args.shards)
+    shard = Shard.parse(args.shard) if args.shard else None
     if not 2 <= args.depth <= 10:
         raise ValueError(f"--depth must be in 2..10, got {args.depth}")
     if args.per_category is not None and args.per_category < 1:
@@ -68,7 +84,7 @@ def run(args: argparse.Namespace) -> dict:
             raise ValueError(f"no shapes found under {args.root} for --source {args.source}")
     cfg = BuildConfig(depth=args.depth, views=args.views, render_size=args.render_size,
                       partial_scans=args.partial, scan_resolution=args.scan_resolution, seed=args.seed)
-    return build_dataset(args.out, tasks, cfg, workers=args.workers, progress=not args.quiet)
+    return build_dataset(args.out, tasks, cfg, workers=args.workers, progress=not args.quiet, shard=shard)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -211,11 +212,54 @@ def _work(args: tuple[str, ShapeTask, BuildConfig]) -> RecordSummary:
     return _summary(task, path, sha, arrays)
 
 
+@dataclass(frozen=True)
+class Shard:
+    """Part ``index`` of ``count`` (0 <= index < count): the shapes whose stable hash falls in it.
+
+    Shape-level and independent of the task list's order, so N independent jobs (a Kubernetes
+    Indexed Job, a SLURM array) build disjoint parts whose union is the whole dataset.
+    """
+
+    index: int
+    count: int
+
+    @classmethod
+    def parse(cls, text: str) -> Shard:
+        m = re.fullmatch(r"(\d+)/(\d+)", text.strip())
+        if not m or not 0 <= int(m.group(1)) < int(m.group(2)):
+            raise ValueError(f"--shard must be K/N with 0 <= K < N (e.g. 0/4), got {text!r}")
+        return cls(int(m.group(1)), int(m.group(2)))
+
+    def holds(self, task: ShapeTask) -> bool:
+        return stable_hash("shard", task.source, task.category, task.shape_id) % self.count == self.index
+
+    @property
+    def manifest_name(self) -> str:
+        return f"manifest.shard-{self.index}-of-{self.count}.json"
+
+
+def _manifest(cfg: BuildConfig, done: list[RecordSummary], shard: Shard | None = None) -> dict:
+    done = sorted(done, key=lambda s: (s.category, s.shape_id))
+    manifest = {
+        "version": RECORD_VERSION,
+        "config": asdict(cfg),
+        "config_fingerprint": cfg.fingerprint(),
+        "splits": {sp: sum(1 for s in done if s.split == sp) for sp in ("train", "val", "test")},
+        "records": [asdict(s) for s in done],
+    }
+    if shard is not None:
+        manifest["shard"] = {"index": shard.index, "count": shard.count}
+    return manifest
+
+
 def build_dataset(out: str | Path, tasks: list[ShapeTask], cfg: BuildConfig, workers: int = 1,
-                  progress: bool = True) -> dict:
-    """Build every task's record under ``out`` (skipping finished ones) and write the manifest."""
+                  progress: bool = True, shard: Shard | None = None) -> dict:
+    """Build every task's record under ``out`` (skipping finished ones) and write the manifest;
+    with ``shard``, only that shard's records and ``manifest.shard-K-of-N.json`` (see :func:`merge_shards`)."""
     from tqdm import tqdm
 
+    if shard is not None:
+        tasks = [t for t in tasks if shard.holds(t)]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     for tmp in out.rglob(TEMP_PREFIX + "*"):  # leftovers of a killed build
@@ -238,14 +282,63 @@ def build_dataset(out: str | Path, tasks: list[ShapeTask], cfg: BuildConfig, wor
             done.append(_work(j))
             bar.update()
     bar.close()
-    done.sort(key=lambda s: (s.category, s.shape_id))
-    manifest = {
-        "version": RECORD_VERSION,
-        "config": asdict(cfg),
-        "config_fingerprint": cfg.fingerprint(),
-        "splits": {sp: sum(1 for s in done if s.split == sp) for sp in ("train", "val", "test")},
-        "records": [asdict(s) for s in done],
-    }
+    manifest = _manifest(cfg, done, shard)
+    name = shard.manifest_name if shard is not None else "manifest.json"
+    write_atomic(out / name, (json.dumps(manifest, indent=1) + "\n").encode())
+    return manifest
+
+
+def merge_shards(out: str | Path, shard_dirs: list[str | Path]) -> dict:
+    """Join shard builds into one dataset under ``out``: checks that every shard of one N is there
+    exactly once with the same build config, that no shape appears twice, and that every record
+    file exists with its manifest's sha256 (copying records that live in other folders); then
+    writes ``out/manifest.json``, identical to the one a single build would write."""
+    import shutil
+
+    out = Path(out)
+    found: dict[int, tuple[Path, dict]] = {}
+    count = fingerprint = None
+    for d in map(Path, shard_dirs):
+        for path in sorted(d.glob("manifest.shard-*-of-*.json")):
+            try:
+                m = json.loads(path.read_text())
+                sh = m["shard"]
+                [(r["category"], r["shape_id"], r["path"], r["sha256"]) for r in m["records"]]
+            except (ValueError, KeyError, TypeError) as exc:
+                raise ValueError(f"{path}: not a shard manifest ({type(exc).__name__}: {exc})") from None
+            if count is None:
+                count, fingerprint = sh.get("count"), m.get("config_fingerprint")
+            if sh.get("count") != count:
+                raise ValueError(f"{path}: shard of {sh.get('count')} parts, others are of {count}")
+            if m.get("config_fingerprint") != fingerprint or m.get("version") != RECORD_VERSION:
+                raise ValueError(f"{path}: built with another config or record version than the other shards")
+            if sh.get("index") in found:
+                raise ValueError(f"{path}: shard {sh.get('index')} also in {found[sh['index']][0]}")
+            found[sh["index"]] = (path, m)
+    if not found:
+        raise ValueError(f"no shard manifests (manifest.shard-K-of-N.json) in {', '.join(map(str, shard_dirs))}")
+    missing = sorted(set(range(count)) - set(found))
+    if missing:
+        raise ValueError(f"shards {missing} of {count} are missing; build them with --shard K/{count}")
+    rows, seen = [], set()
+    for index in sorted(found):
+        path, m = found[index]
+        for r in m["records"]:
+            key = (r["category"], r["shape_id"])
+            if key in seen:
+                raise ValueError(f"{path}: shape {key[1]} is in two shards")
+            seen.add(key)
+            src, dst = path.parent / r["path"], out / r["path"]
+            if not src.is_file():
+                raise ValueError(f"{src}: missing (listed in {path.name})")
+            if hashlib.sha256(src.read_bytes()).hexdigest() != r["sha256"]:
+                raise ValueError(f"{src}: sha256 differs from {path.name}; rebuild that shard")
+            if src.resolve() != dst.resolve():
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(src, dst)
+            rows.append(RecordSummary(**r))
+    cfg = BuildConfig(**found[min(found)][1]["config"])
+    manifest = _manifest(cfg, rows)
     write_atomic(out / "manifest.json", (json.dumps(manifest, indent=1) + "\n").encode())
     return manifest
 

@@ -133,3 +133,51 @@ def test_cli_reports_bad_arguments_in_one_line(tmp_path):
                               cwd=REPO, capture_output=True, text=True, timeout=60)
         assert proc.returncode == 2, proc.stderr
         assert len(proc.stderr.strip().splitlines()) == 1 and msg in proc.stderr
+
+
+def test_two_shards_and_a_merge_equal_a_single_build_byte_for_byte(tmp_path):
+    from model.data.__main__ import main
+    from model.data.dataset import Shard, merge_shards
+
+    tasks = procedural_tasks(4, categories=("chair", "car", "lamp"))
+    single = build_dataset(tmp_path / "single", tasks, SMALL, progress=False)
+    parts = [build_dataset(tmp_path / f"part{k}", tasks, SMALL, progress=False, shard=Shard(k, 2)) for k in (0, 1)]
+    assert all(p["records"] for p in parts)                             # both shards got work
+    assert sum(len(p["records"]) for p in parts) == len(single["records"]) == 12
+    assert not (tmp_path / "part0" / "manifest.json").exists()          # a shard writes its own manifest
+    merged = merge_shards(tmp_path / "merged", [tmp_path / "part0", tmp_path / "part1"])
+    assert merged == single
+    assert (tmp_path / "merged" / "manifest.json").read_bytes() == (tmp_path / "single" / "manifest.json").read_bytes()
+    for r in single["records"]:
+        assert (tmp_path / "merged" / r["path"]).read_bytes() == (tmp_path / "single" / r["path"]).read_bytes()
+    # shards in one shared folder merge in place too, through the CLI
+    for k in (0, 1):
+        build_dataset(tmp_path / "shared", tasks, SMALL, progress=False, shard=Shard(k, 2))
+    assert main(["merge", "--out", str(tmp_path / "shared"), str(tmp_path / "shared")]) == 0
+    assert (tmp_path / "shared" / "manifest.json").read_bytes() == (tmp_path / "single" / "manifest.json").read_bytes()
+
+
+def test_merge_refuses_missing_duplicate_foreign_or_damaged_shards(tmp_path, capsys):
+    from model.data.__main__ import main
+    from model.data.dataset import Shard, merge_shards
+
+    tasks = procedural_tasks(3, categories=("chair", "car"))
+    for k in range(3):
+        build_dataset(tmp_path / f"p{k}", tasks, SMALL, progress=False, shard=Shard(k, 3))
+    with pytest.raises(ValueError, match=r"shards \[2\] of 3 are missing"):
+        merge_shards(tmp_path / "m", [tmp_path / "p0", tmp_path / "p1"])
+    with pytest.raises(ValueError, match="also in"):
+        merge_shards(tmp_path / "m", [tmp_path / "p0", tmp_path / "p0", tmp_path / "p1", tmp_path / "p2"])
+    other = BuildConfig(depth=4, views=1, render_size=16, partial_scans=0, scan_resolution=48)
+    build_dataset(tmp_path / "q", tasks, other, progress=False, shard=Shard(2, 3))
+    with pytest.raises(ValueError, match="another config"):
+        merge_shards(tmp_path / "m", [tmp_path / "p0", tmp_path / "p1", tmp_path / "q"])
+    rec = next(f for k in range(3) for f in (tmp_path / f"p{k}").rglob("*.npz"))
+    rec.write_bytes(rec.read_bytes()[:-10] + b"0123456789")
+    with pytest.raises(ValueError, match="sha256 differs"):
+        merge_shards(tmp_path / "m", [tmp_path / "p0", tmp_path / "p1", tmp_path / "p2"])
+    assert main(["merge", "--out", str(tmp_path / "m"), str(tmp_path / "empty")]) == 2
+    assert "no shard manifests" in capsys.readouterr().err
+    for bad in ("3/3", "-1/2", "a/b", "1"):
+        assert main(["build", "--out", str(tmp_path / "x"), "--per-category", "1", f"--shard={bad}"]) == 2
+        assert "--shard must be K/N" in capsys.readouterr().err
