@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--concurrency", type=int, nargs="+", default=[1, 4], help="requests in flight (default 1 4)")
     ap.add_argument("--seconds", type=float, default=60, help="duration per concurrency level (default 60)")
     ap.add_argument("--models-dir", default=None, help="bundles to serve (default the bundled ones)")
-    ap.add_argument("--env", nargs="*", default=[], help="AOCNN_*=value settings for the server")
+    ap.add_argument("--env", nargs="*", default=[], help="AOCNN_*=value settings for the server (default: none)")
     ap.add_argument("--json", default=None, help="also write the figures here (default: none)")
     args = ap.parse_args(argv)
     port = _free_port()

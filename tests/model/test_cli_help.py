@@ -54,9 +54,17 @@ def _mains():
     from model.release import main as release_main
     from model.results_table import main as table_main
     from model.train.__main__ import main as train_main
+    from export.__main__ import main as export_main
+    from export.quantize import main as quantize_main
+    from service.__main__ import main as service_main
+    from model.calibrate import main as calibrate_main
+    from bench.onnx_decode import main as bench_onnx_main
+    from bench.load import main as bench_load_main
     return {"model.train": train_main, "model.evaluate": evaluate_main, "model.data": data_main,
             "model.octree": octree_main, "model.results_table": table_main, "model.figures": figures_main,
-            "model.release": release_main}
+            "model.release": release_main, "model.calibrate": calibrate_main, "export": export_main,
+            "export.quantize": quantize_main, "service": service_main, "bench.onnx_decode": bench_onnx_main,
+            "bench.load": bench_load_main}
 
 
 @pytest.mark.parametrize("name", sorted(_mains()))
