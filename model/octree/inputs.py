@@ -136,11 +136,42 @@ def _read_trimesh(path: str, depth: int, n_points: int | None, seed: int) -> Loa
     if declared is not None and isinstance(obj, (trimesh.PointCloud, trimesh.Trimesh)) and len(obj.vertices) != declared:
         raise OctreeInputError(f"{path}: the PLY header declares {declared:,} vertices but the file holds "
                                f"{len(obj.vertices):,}; the file is truncated or corrupt")
+    _check_text_counts(path)
     if isinstance(obj, trimesh.PointCloud) or (isinstance(obj, trimesh.Trimesh) and len(obj.faces) == 0):
         return _ply_points(obj, path)
     if not isinstance(obj, trimesh.Trimesh):
         raise OctreeInputError(f"{path}: unsupported content ({type(obj).__name__})")
     return _sample_mesh(obj, path, depth, n_points, seed)
+
+
+def _check_text_counts(path: str) -> None:
+    """ASCII PLY and OFF headers state how many vertex and face lines follow; a file holding fewer
+    is truncated (the mesh reader would load the part it finds as if it were whole).  Binary PLY
+    is checked by its reader's length test."""
+    with open(path, "rb") as fh:
+        data = fh.read()
+    lines = [ln.strip() for ln in data.splitlines()]
+    if data.startswith(b"ply"):
+        if b"format ascii" not in data[:4096] or b"end_header" not in lines:
+            return
+        end = lines.index(b"end_header")
+        counts = {m.group(1).decode(): int(m.group(2))
+                  for m in (re.match(rb"element\s+(\S+)\s+(\d+)", ln) for ln in lines[:end]) if m}
+        held = sum(1 for ln in lines[end + 1:] if ln)
+        what, where = counts, "PLY"
+    else:
+        body = [ln for ln in lines if ln and not ln.startswith(b"#")]
+        if not body or not body[0].startswith(b"OFF"):
+            return
+        fields = body[0][3:].split() or (body[1].split() if len(body) > 1 else [])
+        if len(fields) < 2 or not all(f.isdigit() for f in fields[:2]):
+            return
+        what, where = {"vertex": int(fields[0]), "face": int(fields[1])}, "OFF"
+        held = len(body) - (1 if body[0][3:].split() else 2)
+    if held < sum(what.values()):
+        declared = " and ".join(f"{n:,} {name}" for name, n in what.items())
+        raise OctreeInputError(f"{path}: the {where} header declares {declared} lines but the file holds "
+                               f"{held:,}; the file is truncated or corrupt")
 
 
 def _ply_vertex_count(path: str) -> int | None:

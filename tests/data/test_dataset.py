@@ -128,7 +128,7 @@ def test_cli_reports_bad_arguments_in_one_line(tmp_path):
                       (["--depth", "5"], "--per-category"),
                       (["--per-category", "1", "--categories", "spaceship"], "unknown categories"),
                       (["--source", "modelnet40", "--per-category", "1"], "--root"),
-                      (["--source", "modelnet40", "--root", str(tmp_path / "none")], "")):
+                      (["--source", "modelnet40", "--root", str(tmp_path / "none")], "is not a directory")):
         proc = subprocess.run([sys.executable, "-m", "model.data", "build", "--out", str(tmp_path / "o"), *args],
                               cwd=REPO, capture_output=True, text=True, timeout=60)
         assert proc.returncode == 2, proc.stderr

@@ -68,3 +68,34 @@ def test_full_levels_and_early_stop():
     out = decode(Nothing(build_octree((pts, nrm), 5)), np.zeros((1, 8)))
     assert [len(x) for x in out.levels] == [1, 8, 64, 0, 0, 0]
     assert np.all(out.levels[2].label == EMPTY)
+
+
+def test_split_predicted_at_the_max_depth_becomes_a_leaf():
+    """A 3-class decoder that predicts 'split' everywhere: the last depth's octants are leaves with
+    their patches (without the rule every one of them would vanish from the mesh)."""
+    from model.octree import LEAF, SPLIT
+    from model.octree.patches import patches_to_mesh
+
+    class AlwaysSplit:
+        depth = 4
+
+        def classes(self, depth):
+            return 3 if depth >= 3 else 2
+
+        def start(self, latent):
+            return np.zeros((64 * len(latent), 1))
+
+        def predict(self, depth, x, neighbors):
+            k = self.classes(depth)
+            logits = np.tile(np.eye(k)[1], (len(x), 1))          # non-empty / split everywhere
+            planes = np.tile([0.0, 0.0, 1.0, 0.0], (len(x), 1)) if k == 3 else None
+            return x, logits, planes
+
+        def expand(self, depth, x, split):
+            return np.zeros((8 * len(split), 1))
+
+    out = decode(AlwaysSplit(), np.zeros((1, 8)), adaptive_depth=3)
+    last = out.levels[-1]
+    assert len(last) == 8 ** 4 and np.all(last.label == LEAF) and not np.any(last.label == SPLIT)
+    assert np.all(out.levels[3].label == SPLIT)
+    assert len(patches_to_mesh(out, world=False).faces) == 2 * 8 ** 4     # one square per leaf

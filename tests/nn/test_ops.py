@@ -311,8 +311,10 @@ def test_octree_tensors_mirror_the_octree(sparse):
         assert np.array_equal(tl.split.numpy(), np.flatnonzero(lv.label == SPLIT))
         assert np.array_equal(tl.nonempty.numpy(), lv.label != EMPTY)
         assert np.array_equal(tl.plane.numpy(), lv.plane) and np.array_equal(tl.parent.numpy(), lv.parent)
-    moved = t.to("cpu")
-    assert torch.equal(moved.levels[3].neighbors, t.levels[3].neighbors)
+    moved = t.to("meta")                      # every table moves, and to a new tensor
+    for name in LevelTensors.__dataclass_fields__:
+        a, b = getattr(moved.levels[3], name), getattr(t.levels[3], name)
+        assert a.device.type == "meta" and b.device.type == "cpu" and a.shape == b.shape and a.dtype == b.dtype
     with pytest.raises(ValueError):
         OctreeTensors.from_octree(build_octree(sphere_points(200, 3), 4, neighbors=False))
 

@@ -72,6 +72,13 @@ def test_meshes_are_sampled_densely_enough_for_the_depth():
     assert len(load_input(path, 6, n_points=5000).cloud) == 5000
 
 
+def _npy_bytes(arr) -> bytes:
+    import io
+    buf = io.BytesIO()
+    np.save(buf, arr)
+    return buf.getvalue()
+
+
 @pytest.mark.parametrize("content,ext,msg", [
     (b"", ".obj", "empty"),
     (b"hello", ".xyz2", "unknown format"),
@@ -89,6 +96,13 @@ def test_meshes_are_sampled_densely_enough_for_the_depth():
     (b"garbage that is not a mesh", ".ply", "cannot be read"),
     (b"ply\nformat ascii 1.0\nelement vertex 100\nproperty float x\nproperty float y\nproperty float z\n"
      b"end_header\n0 0 0\n1 0 0\n0 1 0\n1 1 1\n", ".ply", "declares 100 vertices but the file holds 4"),
+    (b"ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+     b"element face 10\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n"
+     b"3 0 1 2\n3 0 1 3\n", ".ply", "declares 4 vertex and 10 face lines but the file holds 6"),
+    (b"OFF\n4 10 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n", ".off", "declares 4 vertex and 10 face lines"),
+    (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n", ".obj", "cannot be read"),
+    (_npy_bytes(np.arange(12).reshape(4, 3) * (1 + 1j)), ".npy", "complex128 values, not real numbers"),
+    (_npy_bytes(np.arange(12).reshape(4, 3) > 3), ".npy", "bool values, not real numbers"),
 ])
 def test_bad_files_raise_one_clear_error(tmp_path, content, ext, msg):
     path = tmp_path / f"bad{ext}"
