@@ -1,7 +1,5 @@
 """Virtual scanner: points on the surface, outward normals, both engines agree."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import trimesh
@@ -11,7 +9,7 @@ from model.data.layouts import load_mesh
 from model.data.scanner import embree_available, scan, scan_detailed, scanner_directions
 from model.data.shapes import generate
 
-MESHES = Path("/work/shared/meshes")
+from ..shared import SHARED_MESHES as MESHES
 
 
 def _assert_on_hit_faces(mesh, s, tol):
@@ -80,6 +78,30 @@ def test_jittered_grid_changes_points():
 def test_empty_mesh_raises():
     with pytest.raises(ValueError, match="empty"):
         scan(trimesh.Trimesh())
+
+
+def test_generated_polygon_soup():
+    """What the real soup below guards, on a generated input that exists wherever the suite runs:
+    40 overlapping boxes, unmerged, a third of their faces flipped, not watertight."""
+    rng = np.random.default_rng(3)
+    parts = []
+    for _ in range(40):
+        box = trimesh.creation.box(rng.uniform(0.05, 0.5, 3))
+        box.apply_translation(rng.uniform(-0.4, 0.4, 3))
+        faces = box.faces.copy()
+        flip = rng.random(len(faces)) < 0.33
+        faces[flip] = faces[flip][:, ::-1]
+        keep = rng.random(len(faces)) > 0.1                     # holes: not watertight
+        parts.append(trimesh.Trimesh(box.vertices, faces[keep], process=False))
+    mesh = trimesh.util.concatenate(parts)
+    assert not mesh.is_watertight
+    s = scan_detailed(mesh, resolution=96)
+    scale = float(np.linalg.norm(mesh.extents))
+    _assert_on_hit_faces(mesh, s, 1e-5 * scale)
+    assert len(s.points) > 10000
+    assert set(np.unique(s.view)) == set(range(14))
+    # flipped faces do not flip normals: each faces the scanner view that saw it
+    assert (np.einsum("ij,ij->i", s.normals, scanner_directions()[s.view]) < 0).all()
 
 
 @pytest.mark.skipif(not MESHES.is_dir(), reason="shared meshes missing")

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 import trimesh
 
-SHARED_MESHES = os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "meshes")
+from ..shared import SHARED_MESHES as SHARED
+
+SHARED_MESHES = str(SHARED)
 MESH_FILES = sorted(f for f in os.listdir(SHARED_MESHES)
                     if f.endswith((".obj", ".off", ".stl", ".ply"))) if os.path.isdir(SHARED_MESHES) else []
 
