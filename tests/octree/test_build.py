@@ -176,9 +176,16 @@ def test_every_shared_mesh_builds_with_leaf_errors_within_threshold(name):
     assert full.nonempty_per_depth()[-1] >= o.nonempty_per_depth()[-1]
 
 
-def test_errors_against_a_dense_mesh_reference_stay_near_the_threshold():
-    """Independent check on a CAD part: patch vs 3M samples of the mesh clipped to each cube."""
-    path = shared_mesh("abc5.stl")
+@pytest.mark.parametrize("source", ["abc5.stl", "generated cabinet"])
+def test_errors_against_a_dense_mesh_reference_stay_near_the_threshold(source, tmp_path):
+    """Independent check on a CAD part (the shared one, and a generated one that exists wherever
+    the suite runs): patch vs 3M samples of the mesh clipped to each cube."""
+    if source.startswith("generated"):
+        from model.data.shapes import generate
+        path = str(tmp_path / "cabinet.stl")
+        generate("cabinet", 2).export(path)
+    else:
+        path = shared_mesh(source)
     loaded = load_input(path, 6)
     o = build_octree(loaded.cloud, 6, sample_spacing=loaded.sample_spacing, neighbors=False)
     mesh = trimesh.load(path, force="mesh")
