@@ -1,9 +1,11 @@
 """Octree CNN operations on per-depth feature tables (N, C), for the networks of paper section 4.
 
 Data moves only through index_select, reshape/view/expand, cat and index_put, arithmetic is
-matmul and element-wise: autograd derives every backward pass (no custom autograd functions) and
-a captured graph (jit trace, torch.export, ONNX) has no loop over nodes and no branch on data.  Features of a depth are
-rows in node order; neighbour and split tables come from :class:`model.nn.tensors.LevelTensors`.
+matmul and element-wise, and a captured graph (jit trace, torch.export, ONNX) has no loop over
+nodes and no branch on data.  Autograd derives every backward pass except the convolution's
+when training eagerly, which is hand-written as a gather + GEMM (:class:`_OctreeConvFunction`).
+Features of a depth are rows in node order; neighbour and split tables come from
+:class:`model.nn.tensors.LevelTensors`.
 """
 
 from __future__ import annotations
@@ -40,13 +42,13 @@ def octree_conv(x: torch.Tensor, neighbors: torch.Tensor, weight: torch.Tensor,
 
     ``neighbors`` (N, 27) int64 with -1 for a missing neighbour, which reads zeros; ``weight`` is
     (27, Cin, Cout) or (27*Cin, Cout) in the neighbour column order.  The neighbour rows are
-    gathered into an (n, 27*Cin) matrix and multiplied by the weight in one GEMM; autograd's
-    backward is a GEMM, a scatter-add of the gathered rows and one GEMM for the weight.
+    gathered into an (n, 27*Cin) matrix and multiplied by the weight in one GEMM.
 
     While a graph is captured all N rows form one gather + GEMM.  Eagerly the rows are split into
     chunks of ``chunk_rows`` (default: :data:`CHUNK_BYTES` of gathered features): one gather of a
     large N allocates 27*N*Cin floats afresh, and on CPU page-faulting that memory cost more than
-    the GEMM itself (bench/conv.py); chunks stay small enough for the allocator to reuse.
+    the GEMM itself (bench/conv.py); chunks stay small enough for the allocator to reuse.  When
+    training eagerly the backward is :class:`_OctreeConvFunction`'s (gather + GEMM, no scatter).
     """
     cin = x.shape[1]
     capture = graph_capture()
@@ -59,16 +61,66 @@ def octree_conv(x: torch.Tensor, neighbors: torch.Tensor, weight: torch.Tensor,
         if chunk_rows is None:
             chunk_rows = max(1, CHUNK_BYTES // (KERNEL * cin * x.element_size()))
     w = weight.reshape(KERNEL * cin, weight.shape[-1])
-    # Row 0 is a zero row, so neighbour j is row j+1 and a missing one (-1) reads row 0.
-    padded = torch.cat([x.new_zeros(1, cin), x])
-    index = neighbors + 1
-    if capture or index.shape[0] <= chunk_rows:
-        out = padded.index_select(0, index.reshape(-1)).view(index.shape[0], KERNEL * cin).mm(w)
+    if capture:
+        # Row 0 is a zero row, so neighbour j is row j+1 and a missing one (-1) reads row 0.
+        padded = torch.cat([x.new_zeros(1, cin), x])
+        out = padded.index_select(0, (neighbors + 1).reshape(-1)).view(neighbors.shape[0], KERNEL * cin).mm(w)
+    elif torch.is_grad_enabled() and (x.requires_grad or w.requires_grad):
+        out = _OctreeConvFunction.apply(x, neighbors, w, chunk_rows)
     else:
-        index = index.contiguous()
-        out = torch.cat([padded.index_select(0, index[a:a + chunk_rows].reshape(-1))
-                         .view(-1, KERNEL * cin).mm(w) for a in range(0, index.shape[0], chunk_rows)])
+        out = _gather_mm(x, neighbors, w, chunk_rows)
     return out if bias is None else out + bias
+
+
+def _gather_mm(x: torch.Tensor, neighbors: torch.Tensor, w: torch.Tensor, chunk_rows: int) -> torch.Tensor:
+    """Rows of ``neighbors`` gathered from ``x`` (a zero row for -1) times ``w``, chunk by chunk."""
+    cin = x.shape[1]
+    padded = torch.cat([x.new_zeros(1, cin), x])
+    index = (neighbors + 1).contiguous()
+    n = index.shape[0]
+    if n <= chunk_rows:
+        return padded.index_select(0, index.reshape(-1)).view(n, KERNEL * cin).mm(w)
+    out = x.new_empty(n, w.shape[1])
+    for a in range(0, n, chunk_rows):
+        torch.mm(padded.index_select(0, index[a:a + chunk_rows].reshape(-1)).view(-1, KERNEL * cin), w,
+                 out=out[a:a + chunk_rows])
+    return out
+
+
+class _OctreeConvFunction(torch.autograd.Function):
+    """The convolution with a hand-written backward, used when training eagerly.
+
+    A neighbour table of one depth is symmetric: if j is n's neighbour at offset o, n is j's at
+    offset -o (column 26 - k).  So the input gradient is the same gather + GEMM as the forward,
+    with the kernel flipped and transposed, instead of autograd's scatter-add of the gathered
+    rows; the weight gradient is the gathered rows' transpose times the output gradient,
+    accumulated chunk by chunk.  Graph capture never sees this function.
+    """
+
+    @staticmethod
+    def forward(ctx, x, neighbors, w, chunk_rows):
+        ctx.save_for_backward(x, neighbors, w)
+        ctx.chunk_rows = chunk_rows
+        return _gather_mm(x, neighbors, w, chunk_rows)
+
+    @staticmethod
+    def backward(ctx, grad):
+        x, neighbors, w = ctx.saved_tensors
+        cin, cout = x.shape[1], w.shape[1]
+        grad = grad.contiguous()
+        gx = gw = None
+        if ctx.needs_input_grad[0]:
+            wt = w.view(KERNEL, cin, cout).flip(0).transpose(1, 2).reshape(KERNEL * cout, cin)
+            chunk = max(1, CHUNK_BYTES // (KERNEL * cout * grad.element_size()))
+            gx = _gather_mm(grad, neighbors, wt, chunk)
+        if ctx.needs_input_grad[2]:
+            padded = torch.cat([x.new_zeros(1, cin), x])
+            index = (neighbors + 1).contiguous()
+            gw = w.new_zeros(KERNEL * cin, cout)
+            for a in range(0, index.shape[0], ctx.chunk_rows):
+                cols = padded.index_select(0, index[a:a + ctx.chunk_rows].reshape(-1)).view(-1, KERNEL * cin)
+                gw.addmm_(cols.t(), grad[a:a + ctx.chunk_rows])
+        return gx, None, gw, None
 
 
 def octree_max_pool(x_children: torch.Tensor, split: torch.Tensor, n_parent: int) -> torch.Tensor:

@@ -371,3 +371,32 @@ def test_torch_export_with_dynamic_sizes(sparse, cube):
     for inputs in (tiny_inputs(t, 4), tiny_inputs(cube[1], DENSE_DEPTH)):
         with torch.no_grad():
             assert torch.allclose(exported.module()(*inputs), net(*inputs), atol=1e-5)
+
+
+def test_the_hand_written_convolution_backward_equals_autograd(sparse):
+    """Gradcheck in float64, and float32 gradients equal to autograd's scatter-add formulation on
+    a real octree's tables, with and without chunking (the input gradient relies on the
+    neighbour table's symmetry)."""
+    from model.nn.ops import KERNEL, _OctreeConvFunction
+
+    _, t = sparse
+    small = t.levels[2].neighbors                   # 128 octants: the numerical Jacobian is O(N^2)
+    x = torch.randn(len(small), 2, dtype=torch.float64, requires_grad=True)
+    w = torch.randn(KERNEL * 2, 2, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda x, w: _OctreeConvFunction.apply(x, small, w, 13), (x, w), eps=1e-6,
+                                    atol=1e-6)
+    for d in (3, 4, 5):
+        nb = t.levels[d].neighbors
+        n = len(nb)
+        for chunk in (None, 17):
+            x32 = torch.randn(n, 8, requires_grad=True)
+            w32 = torch.randn(KERNEL, 8, 16, requires_grad=True)
+            g = torch.randn(n, 16)
+            octree_conv(x32, nb, w32, chunk_rows=chunk).backward(g)
+            got = x32.grad.clone(), w32.grad.clone()
+            x32.grad = w32.grad = None
+            padded = torch.cat([x32.new_zeros(1, 8), x32])            # autograd's formulation
+            padded.index_select(0, (nb + 1).reshape(-1)).view(n, -1).mm(w32.reshape(-1, 16)).backward(g)
+            scale = float(x32.grad.abs().max())
+            assert torch.allclose(got[0], x32.grad, atol=1e-5 * scale) and torch.allclose(got[1], w32.grad, rtol=1e-4,
+                                                                                          atol=1e-4)
