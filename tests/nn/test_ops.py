@@ -373,11 +373,17 @@ def test_torch_export_with_dynamic_sizes(sparse, cube):
             assert torch.allclose(exported.module()(*inputs), net(*inputs), atol=1e-5)
 
 
-def test_the_hand_written_convolution_backward_equals_autograd(sparse):
+def test_the_hand_written_convolution_backward_equals_autograd(sparse, monkeypatch):
     """Gradcheck in float64, and float32 gradients equal to autograd's scatter-add formulation on
     a real octree's tables, with and without chunking (the input gradient relies on the
     neighbour table's symmetry)."""
+    import model.nn.ops as ops
     from model.nn.ops import KERNEL, _OctreeConvFunction
+
+    monkeypatch.setattr(ops, "CUSTOM_BACKWARD_ROWS", 0)      # every size through the hand-written one
+    used = []
+    original = _OctreeConvFunction.backward
+    monkeypatch.setattr(_OctreeConvFunction, "backward", staticmethod(lambda ctx, g: used.append(1) or original(ctx, g)))
 
     _, t = sparse
     small = t.levels[2].neighbors                   # 128 octants: the numerical Jacobian is O(N^2)
@@ -400,3 +406,4 @@ def test_the_hand_written_convolution_backward_equals_autograd(sparse):
             scale = float(x32.grad.abs().max())
             assert torch.allclose(got[0], x32.grad, atol=1e-5 * scale) and torch.allclose(got[1], w32.grad, rtol=1e-4,
                                                                                           atol=1e-4)
+    assert len(used) >= 6                                      # octree_conv took the hand-written backward
