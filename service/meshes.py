@@ -37,14 +37,24 @@ class MeshFile:
 
 
 def choose_format(fmt: str | None, accept: str | None) -> str:
-    """``format`` if given, else the first Accept media type we produce, else GLB."""
+    """``format`` if given, else the Accept media type we produce with the highest q (ties: the
+    first listed; ``*/*`` and ``model/*`` mean GLB), else GLB."""
     if fmt:
         return fmt
-    for part in (accept or "").split(","):
-        kind = part.split(";")[0].strip().lower()
-        if kind in ACCEPT:
-            return ACCEPT[kind]
-    return "glb"
+    offers = []
+    for i, part in enumerate((accept or "").split(",")):
+        kind, *params = [p.strip().lower() for p in part.split(";")]
+        q = 1.0
+        for p in params:
+            if p.startswith("q="):
+                try:
+                    q = float(p[2:])
+                except ValueError:
+                    q = 0.0
+        found = ACCEPT.get(kind) or ("glb" if kind in ("*/*", "model/*") else None)
+        if found and q > 0:
+            offers.append((-q, i, found))
+    return min(offers)[2] if offers else "glb"
 
 
 def _pad4(b: bytes, fill: bytes = b"\x00") -> bytes:

@@ -198,3 +198,13 @@ def test_cors_allows_the_configured_origin_only(models_dir):
 def test_classify_says_no_model_is_installed(client):
     r = client.post("/v1/classify", files={"shape": ("s.xyz", b"0 0 0\n1 0 0\n0 1 0\n")})
     assert r.status_code == 503 and r.json()["error"]["code"] == "no_model" and r.headers["retry-after"]
+
+
+@pytest.mark.parametrize("accept, fmt", [
+    ("model/obj;q=0.5, application/x-ply;q=0.9", "ply"), ("model/obj, application/x-ply", "obj"),
+    ("text/html, */*;q=0.1", "glb"), ("model/gltf+json;q=0, model/obj;q=0.2", "obj"),
+    ("image/png", "glb"), ("model/obj;q=abc, model/gltf+json", "gltf"), (None, "glb")])
+def test_accept_header_negotiation(accept, fmt):
+    from service.meshes import choose_format
+    assert choose_format(None, accept) == fmt
+    assert choose_format("ply", accept) == "ply"                 # the format parameter wins
