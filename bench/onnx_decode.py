@@ -77,10 +77,6 @@ class TimedSteps:
         return self._timed(f"depth {depth}", self.steps.expand, depth, x, split)
 
 
-def _torch_steps(model):
-    return TorchSteps(model.decoder)
-
-
 def pipeline(kind: str, inputs: list, backend: str, model, runtime: Runtime | None, spec) -> dict:
     """Run one batch end to end (``runtime`` None: torch eager); seconds per stage."""
     times: dict = defaultdict(float)
@@ -98,7 +94,7 @@ def pipeline(kind: str, inputs: list, backend: str, model, runtime: Runtime | No
         with torch.no_grad():
             arg = torch.from_numpy(x) if kind == "image" else OctreeTensors.from_octree(x)
             latent = model.encoder(arg).numpy()
-        steps = _torch_steps(model)
+        steps = TorchSteps(model.decoder)
     times["encoder"] = time.perf_counter() - t
     t = time.perf_counter()
     dec = model.decoder

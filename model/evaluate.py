@@ -39,7 +39,7 @@ from .octree import LEAF, Octree
 from .octree.metrics import chamfer_distance, sample_patches
 from .octree.patches import patches_to_mesh
 from .octree.batch import split_octree
-from .train.loop import TrainConfig, build_model, config_from_dict, load_checkpoint
+from .train.loop import TrainConfig
 from .train.images import image_batch
 from .train.tasks import TASKS
 

@@ -9,10 +9,12 @@ request is its own batch.
 from __future__ import annotations
 
 import asyncio
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
-from .engine import Limiter
 from .errors import APIError
+
+if TYPE_CHECKING:
+    from .engine import Limiter
 
 
 class Batcher:

@@ -23,6 +23,7 @@ from model.decode import DECODED_NORMALIZATION
 from model.octree import build_octree
 from model.octree.batch import merge_octrees, split_octree
 
+from .batching import Batcher
 from .errors import APIError
 from .inputs import image_input, shape_input
 from .meshes import MeshFile, encode_mesh
@@ -143,7 +144,6 @@ class Engine:
                                    f"serve {bundle.task}; keep one")
             self.models[bundle.task] = served
         self.limiter = Limiter(self.concurrency, self.settings.queue, self.metrics)
-        from .batching import Batcher
         st = self.settings
         self.batchers = {task: Batcher(fn, self.limiter, st.batch_window_ms / 1e3, st.max_batch, st.timeout_s)
                          for task, fn in (("image-to-shape", self.image_batch), ("completion", self.complete_batch))}
@@ -159,7 +159,7 @@ class Engine:
                 latent = rt.encode_octree(build_octree(_sphere(), b.octree.depth, adaptive=b.octree.adaptive))
             else:
                 continue
-            octree = split_octree(rt.decode(latent), neighbors=False)[0]
+            octree = rt.decode(latent)
             if any(octree.leaves_per_depth()):               # first exports import and compile lazily
                 for fmt in ("glb", "gltf", "ply", "obj"):
                     encode_mesh(octree, fmt)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from model.octree import OctreeInputError
-from model.octree.inputs import LoadedInput, load_input
+from model.octree.inputs import HEADER_BYTES, LoadedInput, load_input, ply_vertex_count
 from model.preprocess import ImageError, ImageSpec, decode_image, prepare_image
 
 from .errors import APIError
@@ -77,9 +77,9 @@ def _check_size(data: bytes, fmt: str, max_points: int, max_npz_bytes: int) -> N
             raise APIError(413, "input_too_large", f"the NPZ archive unpacks to {total:,} bytes, more than the "
                            f"limit of {max_npz_bytes:,}", "send fewer points")
     elif fmt == "ply":
-        m = re.search(rb"element\s+vertex\s+(\d+)", data[:4096])
-        if m and int(m.group(1)) > max_points:
-            raise APIError(413, "too_many_points", f"the PLY header declares {int(m.group(1)):,} vertices, more "
+        declared = ply_vertex_count(data[:HEADER_BYTES])
+        if declared is not None and declared > max_points:
+            raise APIError(413, "too_many_points", f"the PLY header declares {declared:,} vertices, more "
                            f"than the limit of {max_points:,}", "subsample the cloud")
     elif fmt == "npy":
         m = re.search(rb"'shape':\s*\((\d+)", data[:512])

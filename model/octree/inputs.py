@@ -16,6 +16,8 @@ POINT_EXTENSIONS = (".xyz", ".txt", ".pts", ".npy", ".npz", ".ply")
 SAMPLES_PER_VOXEL_EDGE = 3
 """Default mesh sampling: spacing of 1/3 finest voxel, so sampling gaps stay well below delta hat."""
 MAX_DEFAULT_POINTS = 2_000_000
+HEADER_BYTES = 4096
+"""How much of a file its header checks read."""
 MIN_DEFAULT_POINTS = 20_000
 
 
@@ -132,11 +134,13 @@ def _read_trimesh(path: str, depth: int, n_points: int | None, seed: int) -> Loa
             obj = geoms[0]
         else:
             obj = trimesh.util.concatenate(geoms)
-    declared = _ply_vertex_count(path)
+    with open(path, "rb") as fh:
+        head = fh.read(HEADER_BYTES)
+    declared = ply_vertex_count(head)
     if declared is not None and isinstance(obj, (trimesh.PointCloud, trimesh.Trimesh)) and len(obj.vertices) != declared:
         raise OctreeInputError(f"{path}: the PLY header declares {declared:,} vertices but the file holds "
                                f"{len(obj.vertices):,}; the file is truncated or corrupt")
-    _check_text_counts(path)
+    _check_text_counts(path, head)
     if isinstance(obj, trimesh.PointCloud) or (isinstance(obj, trimesh.Trimesh) and len(obj.faces) == 0):
         return _ply_points(obj, path)
     if not isinstance(obj, trimesh.Trimesh):
@@ -144,15 +148,18 @@ def _read_trimesh(path: str, depth: int, n_points: int | None, seed: int) -> Loa
     return _sample_mesh(obj, path, depth, n_points, seed)
 
 
-def _check_text_counts(path: str) -> None:
+def _check_text_counts(path: str, head: bytes) -> None:
     """ASCII PLY and OFF headers state how many vertex and face lines follow; a file holding fewer
     is truncated (the mesh reader would load the part it finds as if it were whole).  Binary PLY
-    is checked by its reader's length test."""
+    is checked by its reader's length test; other formats are not read again."""
+    ascii_ply = head.startswith(b"ply") and b"format ascii" in head
+    if not ascii_ply and b"OFF" not in head[:1024]:
+        return
     with open(path, "rb") as fh:
         data = fh.read()
     lines = [ln.strip() for ln in data.splitlines()]
-    if data.startswith(b"ply"):
-        if b"format ascii" not in data[:4096] or b"end_header" not in lines:
+    if ascii_ply:
+        if b"end_header" not in lines:
             return
         end = lines.index(b"end_header")
         counts = {m.group(1).decode(): int(m.group(2))
@@ -174,10 +181,8 @@ def _check_text_counts(path: str) -> None:
                                f"{held:,}; the file is truncated or corrupt")
 
 
-def _ply_vertex_count(path: str) -> int | None:
-    """The vertex count a PLY header declares (None for other files)."""
-    with open(path, "rb") as fh:
-        head = fh.read(4096)
+def ply_vertex_count(head: bytes) -> int | None:
+    """The vertex count a PLY file's first bytes declare (None for other files)."""
     if not head.startswith(b"ply"):
         return None
     m = re.search(rb"element\s+vertex\s+(\d+)", head)

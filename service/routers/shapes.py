@@ -38,10 +38,7 @@ async def _read(upload: UploadFile) -> tuple[bytes, str | None]:
 
 async def _submit(eng: Engine, task: str, request: Request) -> MeshFile:
     """Through the task's dynamic batcher; a request's own error is raised for it alone."""
-    result = await eng.batchers[task].submit(request)
-    if isinstance(result, Exception):
-        raise result
-    return result
+    return await eng.batchers[task].submit(request)
 
 
 @router.post("/image-to-shape", response_class=Response, responses=MESH_RESPONSE,

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import io
-import json
 
 import numpy as np
 import pytest
@@ -13,7 +12,6 @@ from PIL import Image
 from export.bundle import load_bundle
 from export.runtime import Runtime
 from model.files import sha256_file
-from model.octree import build_octree
 from model.octree.patches import patches_to_mesh
 
 from .conftest import make_client
