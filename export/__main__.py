@@ -20,7 +20,7 @@ def verify(path: str) -> dict:
 
     import numpy as np
 
-    from .bundle import load_bundle
+    from .bundle import BundleError, load_bundle
     from .runtime import Runtime
 
     bundle = load_bundle(path)
@@ -33,6 +33,11 @@ def verify(path: str) -> dict:
         octree = runtime.decode(np.zeros((1, bundle.octree.latent), np.float32))
         summary["decoded_leaves"] = sum(octree.leaves_per_depth())
         summary["decode_ms"] = round(1e3 * (time.perf_counter() - t), 1)
+    if "classifier_head" in bundle.graphs:
+        p = runtime.classify(np.zeros((1, bundle.octree.latent), np.float32))[0]
+        if p.shape != (len(bundle.categories),) or abs(float(p.sum()) - 1) > 1e-4:
+            raise BundleError(f"{path}: the classifier head gives {p.shape[0]} probabilities summing to "
+                              f"{float(p.sum()):.4f} for {len(bundle.categories)} categories")
     return summary
 
 
@@ -60,9 +65,10 @@ def main(argv: list[str] | None = None) -> int:
         from .exporter import export
         meta = export(args.source, args.out, name=args.name, force=args.force)
         check = meta["export"]["self_check"]
+        agree = (f"probabilities within {check['probability_max_abs_diff']:.1e}" if "probability_max_abs_diff" in check
+                 else f"labels {check['label_agreement']:.2%} equal, planes within {check['plane_max_abs_diff']:.1e}")
         print(f"{args.out}: {meta['task']} {meta['name']} {meta['version']}, {len(meta['graphs'])} graphs; "
-              f"onnxruntime vs torch: labels {check['label_agreement']:.2%} equal, planes within "
-              f"{check['plane_max_abs_diff']:.1e}")
+              f"onnxruntime vs torch: {agree}")
         return 0
     except (BundleError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -22,8 +22,9 @@ import torch
 from model.data.shapes import CATEGORIES
 from model.decode import decode
 from model.files import UMASK, json_text, sha256_file, write_atomic
-from model.networks import ARCHS, OctreeDecoder, TorchSteps
+from model.networks import ARCHS, CLASSIFIER_ARCHS, OctreeDecoder, TorchSteps
 from model.octree import DEFAULT_THRESHOLD
+from model.octree.pointcloud import SCAN_FRAME_MARGIN
 from model.preprocess import ImageSpec
 from model.checkpoint import Loaded, load_model
 
@@ -31,8 +32,9 @@ from . import graphs as G
 from .bundle import BUNDLE_FORMAT, MANIFEST, BundleError, GraphSpec, load_bundle
 from .runtime import Runtime
 
-BUNDLE_TASKS = {"image": "image-to-shape", "autoencoder": "autoencoder"}
-"""Training task -> bundle task (completion and classification join with their trainings)."""
+BUNDLE_TASKS = {"image": "image-to-shape", "autoencoder": "autoencoder", "completion": "completion",
+                "classify": "classify"}
+"""Training task -> bundle task."""
 POINT_LIMITS = {"min_points": 100, "max_points": 1_000_000}
 
 
@@ -44,7 +46,7 @@ def load_source(path: str | Path) -> Loaded:
         raise BundleError(str(exc)) from None
     if src.config.task not in BUNDLE_TASKS:
         raise BundleError(f"{path}: task {src.config.task!r} cannot be exported; exportable: {', '.join(BUNDLE_TASKS)}")
-    if not isinstance(src.model.decoder, OctreeDecoder):
+    if src.config.task != "classify" and not isinstance(src.model.decoder, OctreeDecoder):
         raise BundleError(f"{path}: the {src.config.arch} decoder is a research baseline; only octree decoders export")
     if src.meta.get("source_run"):
         results = Path(path).parent / f"{Path(path).name}_test.json"
@@ -54,15 +56,26 @@ def load_source(path: str | Path) -> Loaded:
     return src
 
 
+def _adaptive_input(cfg) -> bool:
+    """Whether the model reads (or grows) adaptive octrees rather than full ones."""
+    if cfg.task == "classify":
+        return CLASSIFIER_ARCHS[cfg.arch][0] == "adaptive"
+    return cfg.task == "image" or ARCHS[cfg.arch].octree == "adaptive"
+
+
 def _octree_spec(src: Loaded) -> dict:
-    dec: OctreeDecoder = src.model.decoder
     cfg = src.config
-    adaptive = cfg.task == "image" or ARCHS[cfg.arch].octree == "adaptive"
-    return {"depth": dec.depth, "full_depth": dec.full_depth, "adaptive_depth": dec.adaptive_depth,
-            "adaptive": adaptive, "classes": {str(d): dec.classes(d) for d in range(dec.full_depth, dec.depth + 1)},
-            "planes": [d for d in range(dec.full_depth, dec.depth + 1) if dec.has_plane(d)], "latent": cfg.latent,
-            "threshold": DEFAULT_THRESHOLD if adaptive else None,
+    adaptive = _adaptive_input(cfg)
+    spec = {"adaptive": adaptive, "latent": cfg.latent, "threshold": DEFAULT_THRESHOLD if adaptive else None,
             "signal": getattr(getattr(src.model, "encoder", None), "signal", "all")}
+    if cfg.task == "classify":          # no decoder: the encoder's depths only
+        enc = src.model.encoder
+        return {"depth": enc.depth, "full_depth": enc.full_depth, "adaptive_depth": min(4, enc.depth),
+                "classes": {}, "planes": [], **spec}
+    dec: OctreeDecoder = src.model.decoder
+    return {"depth": dec.depth, "full_depth": dec.full_depth, "adaptive_depth": dec.adaptive_depth,
+            "classes": {str(d): dec.classes(d) for d in range(dec.full_depth, dec.depth + 1)},
+            "planes": [d for d in range(dec.full_depth, dec.depth + 1) if dec.has_plane(d)], **spec}
 
 
 def _io_spec(src: Loaded, task: str) -> tuple[dict, dict]:
@@ -71,12 +84,20 @@ def _io_spec(src: Loaded, task: str) -> tuple[dict, dict]:
         inp = {"kind": "image", "image": dataclasses.asdict(spec)}
     else:
         inp = {"kind": "points", "points": {**POINT_LIMITS, "normals": "estimated when absent"}}
+        if task == "completion":
+            inp["points"]["frame"] = {"function": "model.octree.scan_frame", "margin": SCAN_FRAME_MARGIN}
+        if task == "classify":
+            inp["points"]["up"] = src.config.up
+    if task == "classify":
+        return inp, {"kind": "probabilities", "classes": list(src.config.categories)}
     return inp, {"kind": "patches", "coordinates": "unit cube [0, 1]^3 (the service maps them to the input's frame)"}
 
 
 def export_graphs(src: Loaded) -> list[G.Graph]:
     """Every graph the bundle's task runs."""
     model, cfg = src.model, src.config
+    if cfg.task == "classify":
+        return [G.encoder_graph(model.encoder, cfg.latent), G.classifier_head_graph(model.head, cfg.latent)]
     out = G.decoder_graphs(model.decoder, cfg.latent)
     if cfg.task == "image":
         out.insert(0, G.image_encoder_graph(model.encoder, cfg.image_size, cfg.latent))
@@ -86,12 +107,19 @@ def export_graphs(src: Loaded) -> list[G.Graph]:
 
 
 def self_check(bundle_dir: Path, src: Loaded, batch: int = 3, seed: int = 0) -> dict:
-    """Decode random latent codes with onnxruntime and torch; raise if they disagree.
-
-    Returns the figures: max |difference| of planes on the common leaves and label agreement.
-    """
+    """Decode (classify: score) random latent codes with onnxruntime and torch; raise if they
+    disagree.  Returns the figures: max |difference| of planes on the common leaves and label
+    agreement (classify: of the probabilities)."""
     runtime = Runtime(load_bundle(bundle_dir), threads=1)
     latent = np.random.default_rng(seed).uniform(-1, 1, (batch, src.config.latent)).astype(np.float32)
+    if src.config.task == "classify":
+        ours = runtime.classify(latent)
+        with torch.no_grad():
+            theirs = torch.softmax(src.model.head(torch.from_numpy(latent)), 1).numpy()
+        diff = float(np.abs(ours - theirs).max())
+        if diff > 1e-5:
+            raise BundleError(f"{bundle_dir}: onnxruntime and torch probabilities differ by {diff:.2e}")
+        return {"latents": batch, "probability_max_abs_diff": diff}
     a = runtime.decode(latent)
     b = decode(TorchSteps(src.model.decoder), latent, src.model.decoder.full_depth, src.model.decoder.adaptive_depth)
     same = sum(int(np.sum(la.label == lb.label)) for la, lb in zip(a.levels, b.levels)
@@ -127,7 +155,7 @@ def export(source: str | Path, out: str | Path, name: str | None = None, force: 
         weights = src.meta.get("weights_sha256")
         meta = {
             "format": BUNDLE_FORMAT, "task": task, "name": name or task,
-            "version": f"{importlib.metadata.version('adaptive-ocnn')}+{(weights or specs['decoder_start']['sha256'])[:12]}",
+            "version": f"{importlib.metadata.version('adaptive-ocnn')}+{(weights or specs['octree_encoder' if task == 'classify' else 'decoder_start']['sha256'])[:12]}",
             "octree": _octree_spec(src), "input": inp, "output": outp,
             "categories": list(src.config.categories or CATEGORIES),
             "graphs": specs,

@@ -191,3 +191,26 @@ def image_encoder_graph(encoder: nn.Module, size: int, latent: int) -> Graph:
     x = torch.rand(2, 3, size, size, generator=torch.Generator().manual_seed(0))
     return _graph("image_encoder", fold_batchnorm(encoder), (x,), {"image": ("float32", ("batch", 3, size, size))},
                   {"latent": ("float32", ("batch", latent))})
+
+
+class _Probabilities(nn.Module):
+    """A classifier head followed by the softmax (the service reports probabilities)."""
+
+    def __init__(self, head: nn.Module):
+        super().__init__()
+        self.head = head
+
+    def forward(self, latent):
+        return torch.softmax(self.head(latent), 1)
+
+
+def classifier_head_graph(head: nn.Module, latent: int) -> Graph:
+    """The classifier head (dropout is the identity at inference): latent codes -> probabilities."""
+    x = torch.rand(2, latent, generator=torch.Generator().manual_seed(0))
+    classes = _out_features(head)
+    return _graph("classifier_head", _Probabilities(head.eval()), (x,), {"latent": ("float32", ("batch", latent))},
+                  {"probabilities": ("float32", ("batch", classes))})
+
+
+def _out_features(head: nn.Module) -> int:
+    return [m for m in head.modules() if isinstance(m, nn.Linear)][-1].out_features

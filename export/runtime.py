@@ -110,6 +110,10 @@ class Runtime:
         """Latent codes (B, L) of a (batched) octree built with the bundle's octree settings."""
         return self.run("octree_encoder", octree_feeds(octree, self.bundle.graphs["octree_encoder"]))[0]
 
+    def classify(self, latent: np.ndarray) -> np.ndarray:
+        """Class probabilities (B, C) of latent codes (B, L) (a classify bundle's head)."""
+        return self.run("classifier_head", {"latent": np.ascontiguousarray(latent, dtype=np.float32)})[0]
+
     def steps(self, depth: int | None = None) -> OrtSteps:
         return OrtSteps(self, depth)
 

@@ -7,7 +7,9 @@ Each shape is encoded (its octree for an autoencoder, a fixed view of its render
 model), decoded (octrees grow through the shared decode loop), its leaf patches sampled at one
 point per sub-patch of the resolution^3 grid, and compared with its ground-truth points by the
 Chamfer distance (reported x 10^3, per category and as the category mean, in unit-cube
-coordinates).  Octree decoders without planes (O-CNN binary) give their finest octants' centres;
+coordinates).  Shape completion decodes in the partial scan's frame; its output is mapped to the
+complete shape's own cube before the comparison, and the Chamfer distance of the partial input
+itself to the truth (what a model that adds nothing would score) is reported beside it.  Octree decoders without planes (O-CNN binary) give their finest octants' centres;
 the point-set decoder its points; the AtlasNet decoder a 20 x 20 grid per patch.  --icp also
 reports the Chamfer distance after rigid ICP alignment of the prediction to the truth (as the
 paper's Table 4).  A shape whose decoder outputs nothing (no patch) has no Chamfer value: it is
@@ -41,6 +43,7 @@ from .octree.patches import patches_to_mesh
 from .octree.batch import split_octree
 from .train.loop import TrainConfig
 from .train.images import image_batch
+from .train.completion import truth_view
 from .train.tasks import TASKS
 
 
@@ -125,9 +128,10 @@ def _mean_or_none(values: list[float]) -> float | None:
 
 def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, limit: int | None = None,
              mesh_dir: str | None = None, batch_size: int = 8, seed: int = 0, oracle: str = "none",
-             align: bool = False, bundle: str | None = None) -> dict:
+             align: bool = False, bundle: str | None = None, normals: str = "given") -> dict:
     """The results dictionary written by the CLI (see the module docstring).  ``bundle``: encode
-    and decode with this exported bundle in onnxruntime instead of the torch model."""
+    and decode with this exported bundle in onnxruntime instead of the torch model.  ``normals``:
+    completion inputs built with the scanner's normals or with estimated ones."""
     if oracle not in ORACLES:
         raise ValueError(f"--oracle must be one of {', '.join(ORACLES)}")
     model, cfg = load_run(run)
@@ -146,8 +150,12 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         from export.bundle import load_bundle
         from export.runtime import Runtime
         runtime = Runtime(load_bundle(bundle))
-    records = task.dataset(cfg, split, seed, points=20_000, limit=limit)
+    completion = cfg.task == "completion"
+    extra = {"normals": normals} if completion else {}
+    records = task.dataset(cfg, split, seed, points=20_000, limit=limit, **extra)
     metrics = ("chamfer_x1e3", "chamfer_icp_x1e3") if align else ("chamfer_x1e3",)
+    if completion:
+        metrics += ("input_chamfer_x1e3",)
     per_cat: dict[str, dict[str, list[float]]] = {m: {} for m in metrics}
     per_shape: list[dict] = []
     confusion: dict[int, np.ndarray] = {}
@@ -164,13 +172,14 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
             latent = torch.from_numpy(runtime.encode_image(
                 image_batch([records.samples[i] for i in idx], task.spec(cfg), None)))
         else:
-            latent = torch.from_numpy(runtime.encode_octree(octree))
+            latent = torch.from_numpy(runtime.encode_octree(records.pairs(idx)[0] if completion else octree))
         if octree_decoder:
             for d, m in status_confusion(model, latent, OctreeTensors.from_octree(octree)).items():
                 confusion[d] = confusion.get(d, 0) + m
         for i, (pts, tree) in zip(idx, decoded_points(model, latent, octree, resolution, seed, oracle,
                                                          runtime and runtime.steps())):
             sample = records.samples[i]
+            pts = truth_view(sample, pts)
             row = {"category": sample.category, "shape_id": sample.shape_id,
                    "truth_nodes": int(sum(sample.octree.nodes_per_depth())), "output_points": int(len(pts))}
             if len(pts):
@@ -178,12 +187,14 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
                 if align:
                     moved = icp(pts, sample.points).apply(pts) if len(pts) >= 3 else pts
                     row["chamfer_icp_x1e3"] = min(row["chamfer_x1e3"], chamfer_distance(sample.points, moved) * 1e3)
-                for m in metrics:
-                    per_cat[m].setdefault(sample.category, []).append(row[m])
             else:
                 empty += 1
-                for m in metrics:
-                    row[m] = None
+                row.update({m: None for m in metrics})
+            if sample.partial is not None:        # the do-nothing floor: the input itself
+                row["input_chamfer_x1e3"] = chamfer_distance(sample.points, sample.partial) * 1e3
+            for m in metrics:
+                if row[m] is not None:
+                    per_cat[m].setdefault(sample.category, []).append(row[m])
             sizes["truth_nodes"].append(row["truth_nodes"])
             if tree is not None:
                 row["decoded_nodes"] = int(sum(tree.nodes_per_depth()))
@@ -210,7 +221,47 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     })
     if cfg.task == "image":
         results["encoder"] = cfg.encoder
+    if completion:
+        results["normals"] = normals
     return results
+
+
+def evaluate_classifier(run: str, data: str, split: str = "test", limit: int | None = None,
+                        batch_size: int = 16) -> dict:
+    """Accuracy of a classifier run: on each shape as built (rotation 0) and voted over the 12
+    rotations about the up axis (mean of the softmax), per category, with the confusion matrix."""
+    from .train.classify import ROTATIONS
+
+    model, cfg = load_run(run)
+    cfg = dataclasses.replace(cfg, data=data)
+    task = TASKS[cfg.task]
+    records = task.dataset(cfg, split, 0, limit=limit)
+    t = time.perf_counter()
+    probs = np.zeros((ROTATIONS, len(records), len(cfg.categories)))
+    with torch.no_grad():
+        for s in range(0, len(records), batch_size):
+            idx = np.arange(s, min(len(records), s + batch_size))
+            for k in range(ROTATIONS):
+                octree, _ = records.batch(idx, k)
+                probs[k, idx] = torch.softmax(model.logits(OctreeTensors.from_octree(octree)), 1).numpy()
+    truth = records.labels
+    single, voted = probs[0].argmax(1), probs.mean(0).argmax(1)
+    per_rotation = (probs.argmax(2) == truth).mean(1)
+    k = len(cfg.categories)
+    confusion = np.bincount(truth * k + voted, minlength=k * k).reshape(k, k)
+    per_cat = {c: {"shapes": int((truth == i).sum()),
+                   "accuracy": float((single[truth == i] == i).mean()) if (truth == i).any() else None,
+                   "voted_accuracy": float((voted[truth == i] == i).mean()) if (truth == i).any() else None}
+               for i, c in enumerate(cfg.categories)}
+    return {"run": str(run), "task": cfg.task, "arch": cfg.arch, "depth": cfg.depth, "split": split,
+            "shapes": len(records), "classes": cfg.categories,
+            "accuracy": float((single == truth).mean()), "voted_accuracy": float((voted == truth).mean()),
+            "accuracy_per_rotation": per_rotation.round(4).tolist(), "per_category": per_cat,
+            "confusion": confusion.tolist(),
+            "per_shape": [{"category": s.category, "shape_id": s.shape_id,
+                           "predicted": cfg.categories[int(single[i])], "voted": cfg.categories[int(voted[i])]}
+                          for i, s in enumerate(records.samples)],
+            "seconds": time.perf_counter() - t}
 
 
 def status_summary(confusion: np.ndarray) -> dict:
@@ -244,6 +295,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="also report the Chamfer distance after rigid ICP alignment to the truth (paper Table 4)")
     ap.add_argument("--bundle", default=None,
                     help="run the model's exported ONNX bundle in onnxruntime instead of torch (default: torch)")
+    ap.add_argument("--normals", choices=("given", "estimated"), default="given",
+                    help="completion: build the partial scans' octrees with the scanner's normals (default) "
+                         "or with normals estimated from the points")
     args = ap.parse_args(argv)
     try:
         folder = os.path.dirname(os.path.abspath(args.out))
@@ -251,17 +305,27 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--out {args.out}: the folder {folder} does not exist")
         if args.resolution < 2 or args.limit is not None and args.limit < 1:
             raise ValueError("--resolution must be at least 2 and --limit at least 1")
-        results = evaluate(args.run, args.data, args.split, args.resolution, args.limit, args.mesh_dir,
-                           oracle=args.oracle, align=args.icp, bundle=args.bundle)
+        if load_model(args.run).config.task == "classify":
+            results = evaluate_classifier(args.run, args.data, args.split, args.limit)
+        else:
+            results = evaluate(args.run, args.data, args.split, args.resolution, args.limit, args.mesh_dir,
+                               oracle=args.oracle, align=args.icp, bundle=args.bundle,
+                               normals=args.normals)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     write_atomic(args.out, json_text(results).encode())
+    if "voted_accuracy" in results:
+        print(f"{args.out}: {results['shapes']} shapes, accuracy {results['accuracy']:.4f}, "
+              f"voted over 12 rotations {results['voted_accuracy']:.4f}")
+        return 0
     mean = results["chamfer_x1e3_category_mean"]
     text = f"{args.out}: {results['shapes']} shapes, Chamfer x1e3 category mean "
     text += f"{mean:.3f}" if mean is not None else "n/a"
     if args.icp and results["chamfer_icp_x1e3_category_mean"] is not None:
         text += f" ({results['chamfer_icp_x1e3_category_mean']:.3f} after ICP)"
+    if results.get("input_chamfer_x1e3_category_mean") is not None:
+        text += f"; the partial inputs themselves {results['input_chamfer_x1e3_category_mean']:.3f}"
     print(text)
     if results["empty_outputs"]:
         print(f"warning: {results['empty_outputs']} of {results['shapes']} shapes decoded to nothing (no patch: "

@@ -20,7 +20,8 @@ import numpy as np
 from export.bundle import Bundle, BundleError, load_bundle
 from export.runtime import Runtime, available_cpus
 from model.decode import DECODED_NORMALIZATION
-from model.octree import build_octree
+from model.octree import PointCloud, build_octree, scan_octree
+from model.octree.geometry import axis_rotation
 from model.octree.batch import merge_octrees, split_octree
 
 from .batching import Batcher
@@ -31,6 +32,7 @@ from .metrics import Metrics, StageTimer
 from .settings import Settings
 
 log = logging.getLogger("service")
+VOTE_ROTATIONS = 12
 
 
 class StartupError(RuntimeError):
@@ -155,8 +157,11 @@ class Engine:
             if b.task == "image-to-shape":
                 size = b.image_spec().size
                 latent = rt.encode_image(np.zeros((1, 3, size, size), np.float32))
-            elif b.task in ("completion", "autoencoder"):
+            elif b.task in ("completion", "autoencoder", "classify"):
                 latent = rt.encode_octree(build_octree(_sphere(), b.octree.depth, adaptive=b.octree.adaptive))
+                if b.task == "classify":
+                    rt.classify(latent)
+                    continue
             else:
                 continue
             octree = rt.decode(latent)
@@ -205,10 +210,10 @@ class Engine:
             with item.timer("decode_input"):
                 loaded = shape_input(item.data, item.filename, o.depth, self.settings.max_points,
                                      self.settings.max_npz_bytes)
-            with item.timer("octree_build"):
-                return build_octree(loaded.cloud, o.depth, adaptive=o.adaptive, full_depth=o.full_depth,
-                                    adaptive_depth=o.adaptive_depth,
-                                    **({"threshold": o.threshold} if o.threshold else {}))
+            with item.timer("octree_build"):       # the scan's frame, as the model was trained
+                return scan_octree(loaded.cloud, o.depth, adaptive=o.adaptive, full_depth=o.full_depth,
+                                   adaptive_depth=o.adaptive_depth,
+                                   **({"threshold": o.threshold} if o.threshold else {}))
 
         def encode(trees):
             return served.runtime.encode_octree(merge_octrees(trees))
@@ -242,6 +247,30 @@ class Engine:
                 except APIError as exc:
                     out[i] = exc
         return out
+
+    def classify(self, data: bytes, filename: str | None, top_k: int, vote: bool,
+                 timer: StageTimer) -> list[tuple[str, float]]:
+        """A shape's ``top_k`` categories with probabilities; ``vote`` averages them over the 12
+        rotations about the bundle's up axis (the paper's test-time vote, 12x the work)."""
+        served = self.model("classify")
+        b = served.bundle
+        o = b.octree
+        with timer("decode_input"):
+            loaded = shape_input(data, filename, o.depth, self.settings.max_points, self.settings.max_npz_bytes,
+                                 "shape")
+        angles = np.arange(VOTE_ROTATIONS if vote else 1) * (2 * np.pi / VOTE_ROTATIONS)
+        up = b.input.get("points", {}).get("up", "y")
+        with timer("octree_build"):
+            c = loaded.cloud
+            trees = [build_octree(PointCloud(c.points @ r.T, c.normals @ r.T), o.depth, adaptive=o.adaptive,
+                                  full_depth=o.full_depth, adaptive_depth=o.adaptive_depth,
+                                  sample_spacing=loaded.sample_spacing,
+                                  **({"threshold": o.threshold} if o.threshold else {}))
+                     for r in (axis_rotation(a, up) for a in angles)]
+        with timer("encoder"):
+            probs = served.runtime.classify(served.runtime.encode_octree(merge_octrees(trees))).mean(0)
+        order = np.argsort(-probs, kind="stable")[:top_k]
+        return [(b.categories[i], min(1.0, max(0.0, float(probs[i])))) for i in order]
 
     def octree(self, data: bytes, filename: str | None, depth: int, threshold: float | None, full: bool, fmt: str,
                color: bool, timer: StageTimer) -> MeshFile:

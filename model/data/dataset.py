@@ -116,12 +116,19 @@ def unit_mesh(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, np.ndarray]:
     return out, np.r_[centre, scale]
 
 
-def build_record(task: ShapeTask, cfg: BuildConfig) -> dict[str, np.ndarray]:
-    """All arrays of one shape's record (see the module docstring)."""
+def scan_shape(task: ShapeTask, cfg: BuildConfig):
+    """A shape's unit mesh, its normalisation, its complete virtual scan (with each point's view
+    and image position) and the random stream the rest of its record is drawn from: the first
+    steps of :func:`build_record`, also used to cut new partial scans from a built dataset's shapes."""
     rng = np.random.default_rng(stable_hash("record", task.source, task.category, task.shape_id, cfg.seed))
     mesh = generate(task.category, task.index, cfg.seed) if task.source == "procedural" else load_mesh(task.mesh_path)
     mesh, mesh_norm = unit_mesh(mesh)
-    full_scan = scan_detailed(mesh, resolution=cfg.scan_resolution, rng=rng)
+    return mesh, mesh_norm, scan_detailed(mesh, resolution=cfg.scan_resolution, rng=rng), rng
+
+
+def build_record(task: ShapeTask, cfg: BuildConfig) -> dict[str, np.ndarray]:
+    """All arrays of one shape's record (see the module docstring)."""
+    mesh, mesh_norm, full_scan, rng = scan_shape(task, cfg)
     cloud = (full_scan.points, full_scan.normals)
     adaptive = build_octree(cloud, cfg.depth, adaptive=True, neighbors=False)
     full = build_octree(cloud, cfg.depth, adaptive=False, neighbors=False)

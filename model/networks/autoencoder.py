@@ -53,9 +53,11 @@ class Autoencoder(nn.Module):
                                    else OctreeDecoder(depth, ch, latent, mode=self.arch.decoder,
                                                       hidden=hidden, loss=structure_loss, blocks=decoder_blocks))
 
-    def forward(self, octree: OctreeTensors, points: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        """Losses on a batch: the octree (input and target) and, for psg, target points (B, M, 3)."""
-        return shape_losses(self.decoder, self.encoder(octree), octree, points)
+    def forward(self, octree: OctreeTensors, points: torch.Tensor | None = None,
+                target: OctreeTensors | None = None) -> dict[str, torch.Tensor]:
+        """Losses on a batch: the input octree, for psg target points (B, M, 3), and the target
+        octree when it differs from the input (shape completion)."""
+        return shape_losses(self.decoder, self.encoder(octree), octree if target is None else target, points)
 
 
 def shape_losses(decoder: nn.Module, latent: torch.Tensor, octree: OctreeTensors | None,

@@ -19,7 +19,7 @@ from . import keys as morton
 from .errors import OctreeInputError
 from .geometry import cube_polygons, fit_planes, polygon_distance, polygon_probes
 from .neighbors import build_neighbors
-from .octree import EMPTY, LEAF, PLANE_SCALE, SPLIT, Octree, OctreeLevel
+from .octree import EMPTY, LEAF, PLANE_SCALE, SPLIT, Normalization, Octree, OctreeLevel
 from .pointcloud import PointCloud, normalization_of, validate
 
 DEFAULT_THRESHOLD = float(np.sqrt(3.0) / 2.0)
@@ -68,14 +68,17 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
                  adaptive: bool = True, threshold: float = DEFAULT_THRESHOLD,
                  full_depth: int = 2, adaptive_depth: int = 4,
                  neighbors: bool = True, measure_leaves: bool = False,
-                 sample_spacing: float | None = None, timings: dict | None = None) -> Octree:
+                 sample_spacing: float | None = None, normalization: Normalization | None = None,
+                 timings: dict | None = None) -> Octree:
     """Build the octree of one oriented point cloud.
 
     ``threshold`` is delta hat in finest voxels (paper: sqrt(3)/2).  ``adaptive=False`` gives
     the full O-CNN octree.  ``measure_leaves`` also measures the patch error of every leaf
     (including those at the max depth), for statistics.  ``sample_spacing`` is the spacing of
     the input samples in input units (estimated when omitted); sampling gaps up to it are not
-    counted as patch error.  ``timings`` receives seconds per build stage.
+    counted as patch error.  ``normalization`` fixes the cube frame (default: the points' own
+    bounding box, :func:`normalization_of`); points outside that cube are dropped.  ``timings``
+    receives seconds per build stage.
     """
     timer = _Timer(timings)
     if not isinstance(depth, (int, np.integer)) or not 1 <= depth <= MAX_BUILD_DEPTH:
@@ -86,7 +89,9 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
         raise OctreeInputError(f"threshold must be a positive number of voxels, got {threshold!r}")
     if not isinstance(cloud, PointCloud):
         cloud = validate(*cloud)
-    norm = normalization_of(cloud.points)
+    norm = normalization_of(cloud.points) if normalization is None else normalization
+    if normalization is not None:
+        cloud = _inside(cloud, norm)
     h_fine = 1.0 / (1 << depth)
 
     with timer("keys+sort"):
@@ -165,6 +170,15 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
         with timer("neighbors"):
             build_neighbors(octree)
     return octree
+
+
+def _inside(cloud: PointCloud, norm: Normalization) -> PointCloud:
+    """The points of ``cloud`` inside ``norm``'s unit cube (at least 3, or OctreeInputError)."""
+    cube = norm.to_cube(cloud.points)
+    keep = ((cube >= 0) & (cube < 1)).all(1)
+    if keep.sum() < 3:
+        raise OctreeInputError(f"only {int(keep.sum())} of {len(cube)} points lie inside the given frame")
+    return cloud if keep.all() else PointCloud(cloud.points[keep], cloud.normals[keep])
 
 
 def _sorted_points(cube: np.ndarray, normals: np.ndarray, depth: int):

@@ -247,3 +247,18 @@ def polygon_probes(normal: np.ndarray, offset: np.ndarray, verts: np.ndarray,
     sine = np.sqrt(np.maximum(1.0 - normal[idx] ** 2, 1e-12))
     edge_dist = np.maximum((size / 2.0 - np.abs(pts)) / sine, 0.0).min(1)
     return pts, idx, edge_dist
+
+
+AXES = ("x", "y", "z")
+
+
+def axis_rotation(angle: float, axis: str = "y") -> np.ndarray:
+    """The 3x3 right-handed rotation by ``angle`` radians about ``axis`` (x, y or z)."""
+    if axis not in AXES:
+        raise ValueError(f"axis must be one of {', '.join(AXES)}, got {axis!r}")
+    c, s = np.cos(angle), np.sin(angle)
+    a = AXES.index(axis)
+    i, j = (a + 1) % 3, (a + 2) % 3
+    r = np.eye(3)
+    r[i, i], r[i, j], r[j, i], r[j, j] = c, -s, s, c
+    return r

@@ -76,6 +76,24 @@ def normalization_of(points: np.ndarray) -> Normalization:
     return Normalization(center=(lo + hi) / 2.0, scale=float((hi - lo).max() / CUBE_FILL))
 
 
+SCAN_FRAME_MARGIN = 1.1
+"""A partial scan's frame is its bounding cube enlarged by this factor: in 99.8% of the dataset's
+partial scans the complete shape lies inside it (docs/RESULTS.md, shape completion)."""
+
+
+def scan_frame(points: np.ndarray, margin: float = SCAN_FRAME_MARGIN) -> Normalization:
+    """The cube a completion model reads a partial scan in and writes the completed shape in.
+
+    The partial's bounding box centred in the unit cube, its longest edge filling
+    ``CUBE_FILL / margin`` of it, so that the missing parts fit around the observed ones.
+    Training, evaluation and the service all frame scans with this one function.
+    """
+    if not margin >= 1:
+        raise ValueError(f"margin must be at least 1, got {margin!r}")
+    norm = normalization_of(points)
+    return Normalization(center=norm.center, scale=norm.scale * margin)
+
+
 def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
     """Unit normals from k-nearest-neighbour PCA, consistently oriented and pointing outward.
 

@@ -1,10 +1,12 @@
-"""Train a network of the paper on a built dataset: an autoencoder (section 5.2) or shape from a
-single image (section 5.3).
+"""Train a network of the paper on a built dataset: classification (section 5.1), an autoencoder
+or shape completion (section 5.2), or shape from a single image (section 5.3).
 
     python -m model.train autoencoder --data DIR --depth D --arch {aocnn,ocnn-binary,ocnn-patch,
         ocnn-patch-star,psg} --out RUN [--iters N] [--batch-size B] [--lr LR] [--optimizer adam|sgd]
     python -m model.train image --data DIR --depth D --encoder {resnet18,lenet}
         --decoder {aocnn,psg,atlasnet} --out RUN [...]
+    python -m model.train completion --data DIR --depth D --arch {aocnn,ocnn-patch,...} --out RUN [...]
+    python -m model.train classify --data DIR --depth D --arch {aocnn,ocnn} [--up y] --out RUN [...]
 
 Progress bar with the loss, validation every --val-every steps, checkpoints written atomically
 to RUN/checkpoint.pt (a rerun resumes from it), metrics appended to RUN/metrics.jsonl, fixed
@@ -22,6 +24,9 @@ import torch
 from ..networks import ARCHS, IMAGE_DECODERS, IMAGE_ENCODERS
 from ..networks.decoder import STRUCTURE_LOSSES
 from .loop import TrainConfig, Trainer
+from ..networks.classifier import CLASSIFIER_ARCHS
+from .classify import UP_AXES
+from .tasks import COMPLETION_ARCHS
 
 
 def common_options() -> argparse.ArgumentParser:
@@ -75,6 +80,20 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     i.add_argument("--teacher", default=None,
                    help="an aocnn autoencoder run: regress the encoder onto its latent codes and use its "
                         "decoder (default: train encoder and decoder end to end)")
+    cached = argparse.ArgumentParser(add_help=False)
+    cached.add_argument("--workers", type=int, default=1,
+                        help="processes building the task's octree cache beside the dataset on first use (default 1)")
+    c = sub.add_parser("completion", parents=[common, cached],
+                       help="train shape completion from partial scans (paper section 5.2)")
+    c.add_argument("--arch", choices=COMPLETION_ARCHS, default="aocnn",
+                   help="aocnn (default): Adaptive O-CNN; ocnn-patch (the paper's baseline), ocnn-patch-star, "
+                        "ocnn-binary: O-CNN on full octrees")
+    k = sub.add_parser("classify", parents=[common, cached], help="train shape classification (paper section 5.1)")
+    k.add_argument("--arch", choices=sorted(CLASSIFIER_ARCHS), default="aocnn",
+                   help="aocnn (default): Adaptive O-CNN on the adaptive octree; ocnn: O-CNN on the full octree")
+    k.add_argument("--up", choices=UP_AXES, default="y",
+                   help="the shapes' up axis, the axis of the 12 training rotations (default y, as the "
+                        "procedural shapes and ShapeNet; ModelNet40's meshes are z-up)")
     return ap.parse_args(argv)
 
 

@@ -10,20 +10,41 @@ from pathlib import Path
 import numpy as np
 
 from ..data.dataset import load_record
-from ..octree import Octree
+from ..octree import Normalization, Octree
 from ..octree.batch import merge_octrees
 from ..octree.serialize import octree_from_arrays
 
 
 @dataclass
 class Sample:
-    """One shape: its octree (input and target) and target points in unit-cube coordinates."""
+    """One shape: its octree (input and target; the target for completion) and target points in
+    unit-cube coordinates (the octree's cube, or ``truth_frame``'s when set)."""
 
     category: str
     shape_id: str
     octree: Octree
     points: np.ndarray
     images: np.ndarray | None = None     # (V, H, W, 4) uint8 renders, when loaded
+    truth_frame: Normalization | None = None   # completion: the cube ``points`` are in (else octree's)
+    partial: np.ndarray | None = None    # completion: the input scan's points in that cube
+
+
+def manifest_rows(data_dir: Path, split: str, depth: int | None = None,
+                  categories: tuple[str, ...] | None = None, limit: int | None = None) -> tuple[dict, list[dict]]:
+    """A dataset's manifest and its rows of ``split`` (of ``categories``, at most ``limit``);
+    FileNotFoundError without a manifest, ValueError on a depth mismatch or no rows."""
+    manifest_path = data_dir / "manifest.json"
+    if not manifest_path.is_file():
+        raise FileNotFoundError(f"{manifest_path} not found: build the dataset with python -m model.data build")
+    manifest = json.loads(manifest_path.read_text())
+    if depth is not None and manifest["config"]["depth"] != depth:
+        raise ValueError(f"the dataset was built at depth {manifest['config']['depth']}, not {depth}")
+    rows = [r for r in manifest["records"] if r["split"] == split
+            and (not categories or r["category"] in categories)][:limit]
+    if not rows:
+        which = f" of categories {', '.join(categories)}" if categories else ""
+        raise ValueError(f"no records of split {split!r}{which} in {data_dir}")
+    return manifest, rows
 
 
 class RecordSet:
@@ -33,17 +54,7 @@ class RecordSet:
                  points: int = 2048, depth: int | None = None, limit: int | None = None, seed: int = 0,
                  images: bool = False, categories: tuple[str, ...] | None = None):
         data_dir = Path(data_dir)
-        manifest_path = data_dir / "manifest.json"
-        if not manifest_path.is_file():
-            raise FileNotFoundError(f"{manifest_path} not found: build the dataset with python -m model.data build")
-        manifest = json.loads(manifest_path.read_text())
-        if depth is not None and manifest["config"]["depth"] != depth:
-            raise ValueError(f"the dataset was built at depth {manifest['config']['depth']}, not {depth}")
-        rows = [r for r in manifest["records"] if r["split"] == split
-                and (not categories or r["category"] in categories)][:limit]
-        if not rows:
-            which = f" of categories {', '.join(categories)}" if categories else ""
-            raise ValueError(f"no records of split {split!r}{which} in {data_dir}")
+        _, rows = manifest_rows(data_dir, split, depth, categories, limit)
         rng = np.random.default_rng(seed)
         self.samples: list[Sample] = []
         for r in rows:

@@ -49,6 +49,8 @@ class TrainConfig:
     image_size: int = 128                      # image task: encoder input side
     background_share: float = 0.5              # image task: samples composited onto a background
     teacher: str | None = None                 # image task: regress onto this autoencoder run's latents
+    workers: int = 1                           # completion, classify: processes building the octree cache
+    up: str = "y"                              # classify: the up axis of the dataset's shapes
 
     def check(self) -> None:
         """Raise ValueError naming the first setting that cannot train."""
@@ -58,7 +60,7 @@ class TrainConfig:
         if self.encoder_width is not None and self.encoder_width < 1:
             raise ValueError(f"--encoder-width must be at least 1, got {self.encoder_width}")
         for name in ("iters", "batch_size", "val_every", "ckpt_every", "latent", "channels", "pred_hidden",
-                     "decoder_blocks"):
+                     "decoder_blocks", "workers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
         if self.limit is not None and self.limit < 1:
@@ -161,7 +163,7 @@ class Trainer:
         saved = asdict(config_from_dict(state["config"]))
         for key in ("task", "arch", "depth", "latent", "channels", "batch_size", "seed", "structure_loss",
                     "pred_hidden", "decoder_blocks", "encoder", "encoder_width", "image_size", "categories",
-                    "teacher"):
+                    "teacher", "up"):
             if saved[key] != getattr(self.cfg, key):
                 raise ValueError(f"{self.ckpt_path} was trained with {key}={saved[key]!r}, not "
                                  f"{getattr(self.cfg, key)!r}; use another --out")

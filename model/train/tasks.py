@@ -8,6 +8,7 @@ the same task for the latent codes of a batch.
 from __future__ import annotations
 
 import functools
+from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -144,6 +145,75 @@ class ImageTask:
         return model.encoder(torch.from_numpy(image_batch(samples, self.spec(cfg), None)))
 
 
+COMPLETION_ARCHS = ("aocnn", "ocnn-patch", "ocnn-patch-star", "ocnn-binary")
+"""Completion networks: the Adaptive O-CNN encoder-decoder and the O-CNN full-octree baselines."""
+
+
+class CompletionTask:
+    """Paper section 5.2, shape completion: a partial scan's octree in, the complete shape's out,
+    both in the scan's frame (``cfg.arch`` of :data:`COMPLETION_ARCHS`, trained end to end)."""
+
+    name = "completion"
+
+    def check(self, cfg: TrainConfig) -> None:
+        if cfg.arch not in COMPLETION_ARCHS:
+            raise ValueError(f"unknown arch {cfg.arch!r}; choose from {', '.join(COMPLETION_ARCHS)}")
+        _check_structure(cfg)
+
+    def dataset(self, cfg, split, seed, points=2048, limit=None, normals: str = "given"):
+        from .completion import CompletionSet
+        return CompletionSet(cfg.data, split, ARCHS[cfg.arch].octree, points=points, depth=cfg.depth,
+                             limit=limit, seed=seed, categories=cfg.categories, normals=normals,
+                             workers=cfg.workers)
+
+    def build_model(self, cfg):
+        return AutoencoderTask.build_model(self, cfg)
+
+    def inputs(self, cfg, dataset, indices, rng):
+        source, target = dataset.pairs(indices, rng)
+        return OctreeTensors.from_octree(source), None, OctreeTensors.from_octree(target)
+
+    def encode(self, model, cfg, dataset, indices):
+        return model.encoder(self.inputs(cfg, dataset, indices, None)[0])
+
+
+class ClassifyTask:
+    """Paper section 5.1: an octree in, its category out (``cfg.arch``: aocnn or ocnn), trained
+    with each shape at 12 rotations about the up axis (one drawn per step)."""
+
+    name = "classify"
+
+    def check(self, cfg: TrainConfig) -> None:
+        from ..networks.classifier import CLASSIFIER_ARCHS
+        if cfg.arch not in CLASSIFIER_ARCHS:
+            raise ValueError(f"unknown arch {cfg.arch!r}; choose from {', '.join(CLASSIFIER_ARCHS)}")
+        if not cfg.categories:         # the classes: every category of the dataset, fixed in the config
+            from .data import manifest_rows
+            manifest, _ = manifest_rows(Path(cfg.data), "train", cfg.depth)
+            cfg.categories = sorted({r["category"] for r in manifest["records"]})
+        if len(cfg.categories) < 2:
+            raise ValueError("classification needs at least 2 categories")
+
+    def dataset(self, cfg, split, seed, points=2048, limit=None):
+        from ..networks.classifier import CLASSIFIER_ARCHS
+        from .classify import ClassifySet
+        return ClassifySet(cfg.data, split, cfg.categories, CLASSIFIER_ARCHS[cfg.arch][0], depth=cfg.depth,
+                           limit=limit, up=cfg.up, workers=cfg.workers)
+
+    def build_model(self, cfg):
+        from ..networks.classifier import Classifier
+        return Classifier(cfg.arch, cfg.depth, len(cfg.categories), latent=cfg.latent, base_channels=cfg.channels)
+
+    def inputs(self, cfg, dataset, indices, rng):
+        from .classify import ROTATIONS
+        rotation = 0 if rng is None else rng.integers(ROTATIONS, size=len(indices))
+        octree, labels = dataset.batch(indices, rotation)
+        return OctreeTensors.from_octree(octree), torch.from_numpy(labels)
+
+    def encode(self, model, cfg, dataset, indices):
+        return model.encoder(self.inputs(cfg, dataset, indices, None)[0])
+
+
 @functools.lru_cache(maxsize=4)
 def _load_teacher(run: str):
     """A teacher autoencoder run (model in eval mode, config), loaded once per process."""
@@ -151,4 +221,5 @@ def _load_teacher(run: str):
     return load_run(run)
 
 
-TASKS: dict[str, Task] = {"autoencoder": AutoencoderTask(), "image": ImageTask()}
+TASKS: dict[str, Task] = {"autoencoder": AutoencoderTask(), "image": ImageTask(), "completion": CompletionTask(),
+                          "classify": ClassifyTask()}

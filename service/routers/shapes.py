@@ -11,7 +11,7 @@ from ..engine import Engine, Request
 from ..errors import ERROR_RESPONSES, APIError
 from ..meshes import FORMATS, MeshFile, choose_format
 from ..metrics import StageTimer
-from ..schemas import ClassifyResponse, Format
+from ..schemas import ClassifyResponse, ClassScore, Format
 
 router = APIRouter(prefix="/v1", tags=["shapes"], dependencies=[Depends(require_key)])
 
@@ -92,7 +92,12 @@ async def octree(shape: UploadFile = File(..., description="a mesh (OBJ, OFF, ST
              summary="A mesh or point cloud -> its most likely categories")
 async def classify(shape: UploadFile = File(..., description="a mesh or point cloud"),
                    top_k: int = Query(5, ge=1, le=50, description="how many categories to return"),
+                   vote: bool = Query(False, description="average over 12 rotations about the up axis "
+                                      "(the paper's test-time vote; 12x the work)"),
                    eng: Engine = Depends(engine)) -> ClassifyResponse:
-    eng.model("classify")               # 503 until a classification bundle is installed (the tasks issue)
-    raise APIError(503, "no_model", "classification bundles are not supported by this version",
-                   "upgrade the service")
+    b = eng.model("classify").bundle
+    data, filename = await _read(shape)
+    timer = StageTimer(eng.metrics)
+    top = await eng.limiter.run(lambda: eng.classify(data, filename, top_k, vote, timer), eng.settings.timeout_s)
+    return ClassifyResponse(model=b.name, version=b.version,
+                            top=[ClassScore(category=c, probability=p) for c, p in top])

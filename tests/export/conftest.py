@@ -29,6 +29,8 @@ CONFIGS = {
     "ocnn-binary": dict(arch="ocnn-binary", depth=4),
     "image-resnet18": dict(task="image", arch="aocnn", depth=DEPTH, encoder="resnet18", encoder_width=8,
                            image_size=64, pred_hidden=16),
+    "completion-aocnn": dict(task="completion", arch="aocnn", depth=DEPTH, structure_loss="balanced", pred_hidden=16),
+    "classify-aocnn": dict(task="classify", arch="aocnn", depth=DEPTH, categories=["chair", "airplane", "car"]),
 }
 
 
@@ -47,7 +49,8 @@ def make_model(name: str) -> tuple[torch.nn.Module, TrainConfig]:
                 m.weight.copy_(0.5 + torch.rand(n, generator=g))
                 m.bias.copy_(0.2 * torch.rand(n, generator=g) - 0.1)
     model.eval()
-    decode(_BiasToMixedTree(model.decoder), np.random.default_rng(0).uniform(-0.2, 0.2, (2, cfg.latent)))
+    if hasattr(model, "decoder"):
+        decode(_BiasToMixedTree(model.decoder), np.random.default_rng(0).uniform(-0.2, 0.2, (2, cfg.latent)))
     return model, cfg
 
 

@@ -23,6 +23,24 @@ def config(data, out, **kw):
     return TrainConfig(**base)
 
 
+def trains_and_resumes_identically(data, tmp_path, **kw) -> tuple[Trainer, dict]:
+    """Train 6 steps straight (run ``a``) and 3 + 3 with a restart (run ``b``); assert equal
+    weights; returns the straight trainer and its summary."""
+    kw = dict(iters=6, ckpt_every=3, val_every=3, **kw)
+    straight = Trainer(config(data, tmp_path / "a", **kw))
+    summary = straight.run()
+    half = Trainer(config(data, tmp_path / "b", **kw))
+    for _ in range(3):
+        half.train_step()
+    half.save()
+    resumed = Trainer(config(data, tmp_path / "b", **kw))
+    assert resumed.step == 3
+    resumed.run()
+    a, b = straight.model.state_dict(), resumed.model.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    return straight, summary
+
+
 def test_checkpoint_resumes_to_identical_weights(tiny_data, tmp_path):
     straight = Trainer(config(tiny_data, tmp_path / "a"))
     straight.run()
@@ -180,20 +198,9 @@ def test_image_training_resumes_and_evaluates_to_a_well_formed_table(tiny_data, 
     from model.evaluate import main as evaluate_main
     from model.results_table import main as table_main
 
-    kw = dict(task="image", arch=decoder, encoder="lenet", encoder_width=4, image_size=32, iters=6,
-              ckpt_every=3, val_every=3)
-    straight = Trainer(config(tiny_data, tmp_path / "a", **kw))
-    summary = straight.run()
+    kw = dict(task="image", arch=decoder, encoder="lenet", encoder_width=4, image_size=32)
+    _, summary = trains_and_resumes_identically(tiny_data, tmp_path, **kw)
     assert summary["steps"] == 6 and np.isfinite(summary["val"]["total"])
-    half = Trainer(config(tiny_data, tmp_path / "b", **kw))
-    for _ in range(3):
-        half.train_step()
-    half.save()
-    resumed = Trainer(config(tiny_data, tmp_path / "b", **kw))
-    assert resumed.step == 3
-    resumed.run()
-    a, b = straight.model.state_dict(), resumed.model.state_dict()
-    assert all(torch.equal(a[k], b[k]) for k in a)
 
     out = tmp_path / "res.json"
     assert evaluate_main([str(tmp_path / "a"), "--data", str(tiny_data), "--split", "train", "--limit", "4",

@@ -1,5 +1,5 @@
-"""A service over small random-weight bundles: an image-to-shape bundle and a completion bundle
-(an exported octree autoencoder relabelled as completion: the same graphs and inputs)."""
+"""A service over small random-weight bundles of every served task: image-to-shape, completion
+and classification."""
 
 from __future__ import annotations
 
@@ -19,10 +19,12 @@ from ..export.conftest import clouds, exported  # noqa: F401  (fixtures)
 def models_dir(exported, tmp_path_factory):
     root = tmp_path_factory.mktemp("models")
     shutil.copytree(exported("image-resnet18")[2], root / "image-to-shape")
-    shutil.copytree(exported("aocnn")[2], root / "completion")
-    meta = json.loads((root / "completion" / "model.json").read_text())
-    meta.update(task="completion", name="completion-test")
-    (root / "completion" / "model.json").write_text(json.dumps(meta))
+    shutil.copytree(exported("completion-aocnn")[2], root / "completion")
+    shutil.copytree(exported("classify-aocnn")[2], root / "classify")
+    for task in ("completion", "classify"):
+        meta = json.loads((root / task / "model.json").read_text())
+        meta.update(name=f"{task}-test")
+        (root / task / "model.json").write_text(json.dumps(meta))
     return root
 
 

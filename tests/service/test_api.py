@@ -41,13 +41,14 @@ def test_health_readiness_and_their_v2_aliases(client):
         assert client.get(path).json() == {"status": "ok"}
     for path in ("/readyz", "/v2/health/ready"):
         r = client.get(path)
-        assert r.status_code == 200 and r.json() == {"ready": True, "models": ["completion", "image-to-shape"]}
+        assert r.status_code == 200 and r.json() == {"ready": True,
+                                                      "models": ["classify", "completion", "image-to-shape"]}
 
 
 def test_models_lists_each_bundle_with_the_checksums_of_its_files(client, models_dir):
     body = client.get("/v1/models").json()
     tasks = {m["task"]: m for m in body["models"]}
-    assert set(tasks) == {"image-to-shape", "completion"}
+    assert set(tasks) == {"image-to-shape", "completion", "classify"}
     img = tasks["image-to-shape"]
     assert img["depth"] == 5 and img["min_depth"] == 4 and img["input"]["image"]["size"] == 64
     for name, g in img["graphs"].items():
@@ -193,9 +194,78 @@ def test_cors_allows_the_configured_origin_only(models_dir):
         assert "access-control-allow-origin" not in bad.headers
 
 
-def test_classify_says_no_model_is_installed(client):
-    r = client.post("/v1/classify", files={"shape": ("s.xyz", b"0 0 0\n1 0 0\n0 1 0\n")})
-    assert r.status_code == 503 and r.json()["error"]["code"] == "no_model" and r.headers["retry-after"]
+def _torch_probabilities(model, pts, normals, depth: int, rotations: int = 1) -> np.ndarray:
+    """The classifier's probabilities (mean over ``rotations`` about y) through torch."""
+    import torch
+
+    from model.nn.tensors import OctreeTensors
+    from model.octree import build_octree, validate
+    from model.octree.batch import merge_octrees
+    from model.octree.geometry import axis_rotation
+
+    trees = []
+    for k in range(rotations):
+        r = axis_rotation(2 * np.pi * k / 12, "y")
+        trees.append(build_octree(validate(pts @ r.T, normals @ r.T), depth, adaptive=True))
+    with torch.no_grad():
+        return torch.softmax(model.logits(OctreeTensors.from_octree(merge_octrees(trees))), 1).mean(0).numpy()
+
+
+def test_classify_returns_the_models_top_categories_with_and_without_the_12_rotation_vote(client, exported, clouds):
+    model, cfg, _ = exported("classify-aocnn")
+    pts, normals = clouds[-1][0][::10], clouds[-1][1][::10]
+    data = _npz(pts, normals)
+    for vote, rotations in (("false", 1), ("true", 12)):
+        r = client.post(f"/v1/classify?top_k=2&vote={vote}", files={"shape": ("s.npz", data)})
+        assert r.status_code == 200, r.text
+        body = r.json()
+        assert body["model"] == "classify-test" and len(body["top"]) == 2
+        want = _torch_probabilities(model, pts, normals, cfg.depth, rotations)
+        order = np.argsort(-want)[:2]
+        assert [t["category"] for t in body["top"]] == [cfg.categories[i] for i in order]
+        assert np.allclose([t["probability"] for t in body["top"]], want[order], atol=1e-4)
+    every = client.post("/v1/classify?top_k=50", files={"shape": ("s.npz", data)}).json()["top"]
+    assert sorted(t["category"] for t in every) == sorted(cfg.categories)
+    assert sum(t["probability"] for t in every) == pytest.approx(1, abs=1e-4)
+    assert client.post("/v1/classify", files={"shape": ("s.xyz", b"0 0 0\n1 0 0\n2 0 0\n")}).status_code == 400
+
+
+def test_classify_and_complete_answer_503_without_their_bundles(models_dir, tmp_path):
+    import shutil
+
+    shutil.copytree(models_dir / "image-to-shape", tmp_path / "image-to-shape")
+    with make_client(tmp_path) as c:
+        for path, field in (("/v1/classify", "shape"), ("/v1/complete", "points")):
+            r = c.post(path, files={field: ("s.xyz", b"0 0 0\n1 0 0\n0 1 0\n")})
+            assert r.status_code == 503 and r.json()["error"]["code"] == "no_model" and r.headers["retry-after"]
+
+
+def test_complete_builds_the_training_input_octree_with_and_without_normals(client, exported, clouds):
+    """The service's completion input is :func:`scan_octree` of the upload (normals estimated when
+    absent), exactly the octrees the model was trained on, and the output is in the scan's frame."""
+    import torch
+
+    from model.decode import decode
+    from model.networks import TorchSteps
+    from model.nn.tensors import OctreeTensors
+    from model.octree import scan_frame, scan_octree, validate
+    from model.octree.batch import split_octree
+
+    model, cfg, _ = exported("completion-aocnn")
+    pts = partial_cloud(clouds)[::4]
+    normals = clouds[-1][1][clouds[-1][0][:, 0] < np.quantile(clouds[-1][0][:, 0], 0.7)][::4]
+    for name, data, given in (("scan.npz", _npz(pts, normals), normals), ("scan.npy", _npy(pts), None)):
+        r = client.post("/v1/complete?format=ply", files={"points": (name, data)})
+        assert r.status_code == 200, r.text
+        got = trimesh.load(io.BytesIO(r.content), file_type="ply", process=False)
+        tree = scan_octree(validate(pts, given), cfg.depth)
+        with torch.no_grad():
+            latent = model.encoder(OctreeTensors.from_octree(tree)).numpy()
+        out = split_octree(decode(TorchSteps(model.decoder), latent), neighbors=False)[0]
+        out.normalizations = [scan_frame(pts)]
+        want = patches_to_mesh(out)
+        assert len(want.faces) > 0 and np.allclose(got.bounds, want.bounds, atol=1e-3 * np.ptp(pts, 0).max())
+        assert got.area == pytest.approx(want.area, rel=1e-3)
 
 
 @pytest.mark.parametrize("accept, fmt", [

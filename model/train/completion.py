@@ -1,0 +1,129 @@
+"""Shape-completion training data: each record's partial scans as input octrees, the complete
+scan as the target octree, both in the partial scan's frame (:func:`model.octree.scan_frame`).
+
+Inputs are built by :func:`model.octree.scan_octree`, the service's own code, once with the
+scanner's normals and once with normals estimated from the points (a user's scan often has
+none), so the model is trained on both.  The octrees of a record are built once and cached
+beside the dataset (:mod:`model.train.cache`).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..octree import Octree, build_octree, scan_frame, scan_octree, validate
+from ..octree.batch import merge_octrees
+from ..octree.pointcloud import normalization_of
+from ..octree.serialize import octree_from_arrays, octree_to_arrays
+from .cache import cache_dir, load_derived
+from .data import Sample, manifest_rows
+
+CACHE_VERSION = 1
+NORMALS = ("given", "estimated")
+KINDS = ("adaptive", "full")
+
+
+@dataclass
+class Variant:
+    """One partial scan of a shape: input octrees per normals mode, target, points (truth cube)."""
+
+    inputs: dict[str, Octree]          # NORMALS -> input octree (scan frame)
+    target: Octree                     # the complete scan in the same frame
+    partial: np.ndarray                # the partial points in the truth cube (the do-nothing floor)
+
+
+def record_octrees(record, depth: int, kind: str) -> dict[str, np.ndarray]:
+    """Every octree of one record's completion samples, as arrays (the cache file's content)."""
+    adaptive = kind == "adaptive"
+    complete = validate(record["points"], record["normals"])
+    out: dict[str, np.ndarray] = {"scans": np.array(len(record["partial_offsets"]) - 1)}
+    for j in range(int(out["scans"])):
+        pts, nrm = record.partial(j)
+        frame = scan_frame(np.asarray(pts, dtype=np.float64))
+        for mode in NORMALS:
+            cloud = validate(pts, nrm if mode == "given" else None)
+            out.update(octree_to_arrays(scan_octree(cloud, depth, adaptive=adaptive, neighbors=False), prefix=f"s{j}_{mode}_"))
+        target = build_octree(complete, depth, adaptive=adaptive, neighbors=False, normalization=frame)
+        out.update(octree_to_arrays(target, prefix=f"s{j}_target_"))
+    return out
+
+
+class CompletionSet:
+    """The completion samples of one split, in memory.  ``samples[i]`` is the evaluation view
+    (scan 0, ``normals`` mode): its octree is the target, its points the truth in the complete
+    shape's own cube (``truth_frame``), its ``partial`` the input points there."""
+
+    def __init__(self, data_dir: str | Path, split: str, kind: str = "adaptive", points: int = 2048,
+                 depth: int | None = None, limit: int | None = None, seed: int = 0,
+                 categories: tuple[str, ...] | None = None, normals: str = "given", workers: int = 1):
+        if kind not in KINDS:
+            raise ValueError(f"kind must be one of {', '.join(KINDS)}")
+        if normals not in NORMALS:
+            raise ValueError(f"normals must be one of {', '.join(NORMALS)}")
+        data_dir = Path(data_dir)
+        manifest, rows = manifest_rows(data_dir, split, depth, categories, limit)
+        if manifest["config"].get("partial_scans", 0) < 1:
+            raise ValueError(f"{data_dir} has no partial scans; rebuild with --partial-scans 2")
+        built = manifest["config"]["depth"]
+        cache = cache_dir(data_dir, f"completion-{kind}", {"v": CACHE_VERSION, "depth": built, "kind": kind})
+        loaded = load_derived(data_dir, rows, cache, functools.partial(record_octrees, depth=built, kind=kind),
+                              ("points", "partial_points", "partial_offsets"), workers)
+        rng = np.random.default_rng(seed)
+        self.samples: list[Sample] = []
+        self.variants: list[list[Variant]] = []
+        self.normals = normals
+        for r, (rec, arrays) in zip(rows, loaded):
+            truth = normalization_of(rec["points"])
+            variants = []
+            off = rec["partial_offsets"]
+            for j in range(int(arrays["scans"])):
+                inputs = {m: octree_from_arrays(arrays, prefix=f"s{j}_{m}_", neighbors=False) for m in NORMALS}
+                target = octree_from_arrays(arrays, prefix=f"s{j}_target_", neighbors=False)
+                partial = truth.to_cube(rec["partial_points"][off[j]:off[j + 1]]).astype(np.float32)
+                variants.append(Variant(inputs, target, partial))
+            cube = truth.to_cube(rec["points"])
+            pick = rng.choice(len(cube), size=points, replace=len(cube) < points)
+            first = variants[0]
+            self.samples.append(Sample(r["category"], r["shape_id"], first.target, cube[pick].astype(np.float32),
+                                       truth_frame=truth, partial=first.partial))
+            self.variants.append(variants)
+        self.depth = self.samples[0].octree.depth
+        self.latents = None
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+    def pairs(self, indices, rng: np.random.Generator | None = None) -> tuple[Octree, Octree]:
+        """Merged (input, target) octrees with neighbour tables.  With ``rng``, each shape's scan
+        and normals mode are drawn at random (training); without, the evaluation view."""
+        from ..octree.neighbors import build_neighbors
+
+        inputs, targets = [], []
+        for i in indices:
+            options = self.variants[i]
+            if rng is None:
+                v, mode = options[0], self.normals
+            else:
+                v, mode = options[int(rng.integers(len(options)))], NORMALS[int(rng.integers(len(NORMALS)))]
+            inputs.append(v.inputs[mode])
+            targets.append(v.target)
+        merged = merge_octrees(inputs), merge_octrees(targets)
+        for tree in merged:
+            build_neighbors(tree)
+        return merged
+
+    def batch(self, indices) -> tuple[Octree, np.ndarray]:
+        """The merged target octree of the evaluation view and the truth points (B, P, 3)."""
+        _, target = self.pairs(indices)
+        return target, np.stack([self.samples[i].points for i in indices])
+
+
+def truth_view(sample: Sample, cube_points: np.ndarray) -> np.ndarray:
+    """Decoded points (cube of ``sample.octree``'s frame) in the sample's truth cube."""
+    if sample.truth_frame is None:
+        return cube_points
+    return sample.truth_frame.to_cube(sample.octree.normalizations[0].to_world(cube_points))

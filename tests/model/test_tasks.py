@@ -1,0 +1,159 @@
+"""Shape completion and classification as training tasks: their data, resume, evaluation."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from model.data.dataset import load_record
+from model.octree import build_octree, scan_frame, scan_octree, validate
+from model.octree.geometry import axis_rotation
+from model.train.loop import Trainer
+
+from .test_train import config, trains_and_resumes_identically
+
+
+def _same_octree(a, b) -> bool:
+    return all(np.array_equal(x.key, y.key) and np.array_equal(x.label, y.label)
+               and np.allclose(x.plane, y.plane, atol=1e-6) for x, y in zip(a.levels, b.levels))
+
+
+def test_completion_inputs_are_the_services_octrees_with_and_without_normals(scan_data):
+    from model.train.completion import CompletionSet
+
+    data = CompletionSet(scan_data, "train", limit=3)
+    manifest = json.loads((scan_data / "manifest.json").read_text())
+    row = [r for r in manifest["records"] if r["split"] == "train"][1]
+    rec = load_record(scan_data / row["path"])
+    for j, variant in enumerate(data.variants[1]):
+        pts, nrm = rec.partial(j)
+        frame = scan_frame(np.asarray(pts, np.float64))
+        assert _same_octree(variant.inputs["given"], scan_octree(validate(pts, nrm), 5))
+        assert _same_octree(variant.inputs["estimated"], scan_octree(validate(pts, None), 5))
+        assert not _same_octree(variant.inputs["given"], variant.inputs["estimated"])
+        # the target: the complete scan, in the same frame as the input (the partial's enlarged cube)
+        assert _same_octree(variant.target, build_octree((rec["points"], rec["normals"]), 5, normalization=frame))
+        for tree in (variant.target, variant.inputs["given"]):
+            n = tree.normalizations[0]
+            assert np.allclose(n.center, frame.center) and n.scale == pytest.approx(frame.scale)
+    # the frame holds the partial with its margin: its longest edge fills 0.96 / 1.1 of the cube
+    cube = frame.to_cube(pts)
+    assert (cube.max(0) - cube.min(0)).max() == pytest.approx(0.96 / 1.1)
+
+
+def test_build_octree_in_a_given_frame_drops_points_outside_it():
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(3000, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    half = scan_frame(p[p[:, 0] < 0])                    # the frame of the left half only
+    tree = build_octree((p, p), 5, normalization=half)
+    inside = ((half.to_cube(p) >= 0) & (half.to_cube(p) < 1)).all(1)
+    assert 0 < inside.sum() < len(p) and tree.levels[0].npoints[0] == inside.sum()
+    from model.octree import OctreeInputError
+    far = scan_frame(p + 10)
+    with pytest.raises(OctreeInputError, match="inside the given frame"):
+        build_octree((p, p), 5, normalization=far)
+
+
+def test_completion_training_resumes_and_evaluates_against_the_input_floor(scan_data, tmp_path):
+    from model.evaluate import main as evaluate_main
+    from model.results_table import main as table_main
+
+    straight, summary = trains_and_resumes_identically(scan_data, tmp_path, task="completion",
+                                                       structure_loss="balanced")
+    assert np.isfinite(summary["train"]["total"])
+    # training draws scans and normal modes at random: two steps see different inputs
+    rng = np.random.default_rng(0)
+    idx = np.arange(4)
+    drawn = {tuple(int(x) for x in straight.train_set.pairs(idx, rng)[0].nodes_per_depth()) for _ in range(6)}
+    assert len(drawn) > 1
+
+    for normals in ("given", "estimated"):
+        out = tmp_path / f"{normals}.json"
+        assert evaluate_main([str(tmp_path / "a"), "--data", str(scan_data), "--split", "train", "--limit", "4",
+                              "--resolution", "32", "--normals", normals, "--out", str(out)]) == 0
+        res = json.loads(out.read_text())
+        assert res["task"] == "completion" and res["normals"] == normals and res["shapes"] == 4
+        floor = [r["input_chamfer_x1e3"] for r in res["per_shape"]]
+        assert all(0 < f < 50 for f in floor)                 # partial scans of the truth: close, not equal
+        assert res["input_chamfer_x1e3_category_mean"] == pytest.approx(
+            np.mean([np.mean([r["input_chamfer_x1e3"] for r in res["per_shape"] if r["category"] == c])
+                     for c in {r["category"] for r in res["per_shape"]}]))
+    assert table_main([str(tmp_path / "given.json"), str(tmp_path / "estimated.json")]) == 0
+
+
+def test_completion_cache_is_rebuilt_when_stale_or_damaged(scan_data):
+    from model.train.completion import CompletionSet
+
+    first = CompletionSet(scan_data, "train", limit=1)
+    cached = sorted((scan_data / "cache").glob("completion-adaptive-*/records/*/*.npz"))
+    target = [c for c in cached if c.stem == first.samples[0].shape_id][0]
+    target.write_bytes(b"garbage")
+    again = CompletionSet(scan_data, "train", limit=1)
+    assert _same_octree(again.samples[0].octree, first.samples[0].octree)
+    with np.load(target) as f:
+        assert str(f["record_sha256"]) != ""
+
+
+def test_classify_trains_on_rotations_resumes_and_votes(tiny_data, tmp_path):
+    from model.evaluate import main as evaluate_main
+    from model.train.classify import ROTATIONS
+
+    straight, summary = trains_and_resumes_identically(tiny_data, tmp_path, task="classify")
+    assert straight.cfg.categories == ["airplane", "chair", "table"]      # the dataset's, fixed in the config
+    assert 0 <= summary["val"]["accuracy"] <= 1 and np.isfinite(summary["val"]["cross_entropy"])
+
+    # rotation k is the shape turned by k * 30 degrees about the up axis, normalised anew
+    data = straight.train_set
+    rec = load_record(tiny_data / json.loads((tiny_data / "manifest.json").read_text())["records"][0]["path"])
+    assert data.samples[0].shape_id == str(rec["shape_id"])
+    r = axis_rotation(2 * np.pi * 3 / ROTATIONS, "y")
+    want = build_octree((rec["points"] @ r.T, rec["normals"] @ r.T), 5, neighbors=False)
+    rotated = data.rotations[0]
+    assert _same_octree(rotated[3], want)
+    assert not _same_octree(rotated[0], rotated[3])
+
+    out = tmp_path / "cls.json"
+    assert evaluate_main([str(tmp_path / "a"), "--data", str(tiny_data), "--split", "val", "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert len(res["accuracy_per_rotation"]) == ROTATIONS and res["accuracy_per_rotation"][0] == res["accuracy"]
+    assert np.sum(res["confusion"]) == res["shapes"]
+    assert res["voted_accuracy"] == pytest.approx(np.trace(res["confusion"]) / res["shapes"])
+
+
+@pytest.mark.parametrize("task, extra, needle", [
+    ("completion", ["--arch", "psg"], "invalid choice"),
+    ("completion", ["--workers", "0"], "--workers must be at least 1"),
+    ("classify", ["--arch", "ocnn-patch"], "invalid choice"),
+    ("classify", ["--categories", "chair"], "at least 2 categories"),
+])
+def test_task_commands_reject_bad_settings_in_one_line(tiny_data, tmp_path, capsys, task, extra, needle):
+    from model.train.__main__ import main
+
+    argv = [task, "--data", str(tiny_data), "--depth", "5", "--out", str(tmp_path / "r"), "--iters", "1", *extra]
+    try:
+        code = main(argv)
+    except SystemExit as exc:           # argparse's own refusal
+        code = exc.code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and needle in err[-1]
+
+
+def test_completion_needs_a_dataset_with_partial_scans(tiny_data, tmp_path):
+    with pytest.raises(ValueError, match="no partial scans"):
+        Trainer(config(tiny_data, tmp_path / "r", task="completion"))
+
+
+def test_degradation_table_pairs_settings_and_reads_fewer_views_as_worse_input(scan_data, tmp_path):
+    from model.degrade import SETTINGS, main
+
+    Trainer(config(scan_data, tmp_path / "run", task="completion", iters=2)).run()
+    out = tmp_path / "deg.json"
+    assert main([str(tmp_path / "run"), "--data", str(scan_data), "--limit-per-category", "1",
+                 "--split", "train", "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["shapes"] == 2 and len(res["settings"]) == len(SETTINGS)
+    floor = {k: v["rows"]["input"]["chamfer_x1e3_category_mean"] for k, v in res["settings"].items()}
+    assert floor["1 view"] > floor[SETTINGS[0].name]
+    assert floor["noise 0.02"] > floor["noise 0.01"]
