@@ -7,7 +7,8 @@ dataset build made them) under each setting of :data:`SETTINGS`, with the same r
 shape in every setting and for every run, so rows and runs are paired.  Each scan is built into
 its octree by the service's code (:func:`model.octree.scan_octree`, the scanner's normals), the
 shape completed, and the output compared with the complete truth by the Chamfer distance (x10^3,
-the complete shape's cube, category mean), beside the partial input's own distance.
+the complete shape's cube, category mean) and by the missing part's distance to it
+(:func:`model.octree.metrics.missing_distance`), each beside the partial input's own value.
 """
 
 from __future__ import annotations
@@ -26,12 +27,12 @@ from .checkpoint import load_model
 from .data.dataset import BuildConfig, ShapeTask, load_record, scan_shape
 from .data.partial import partial_from_scan
 from .data.shapes import stable_hash
-from .evaluate import decoded_points
+from .evaluate import MISSING_GAP_VOXELS, decoded_points
 from .files import json_text, write_atomic
 from .nn.tensors import OctreeTensors
 from .octree import scan_frame, scan_octree, validate
 from .octree.batch import merge_octrees
-from .octree.metrics import chamfer_distance
+from .octree.metrics import chamfer_distance, missing_distance
 from .octree.pointcloud import normalization_of
 from .results_table import paired_difference
 
@@ -85,6 +86,7 @@ def degrade(runs: list[str], data: str, limit_per_category: int | None = None, r
         if m.config.task != "completion":
             raise ValueError(f"{m.meta.get('source_run', 'a model')} is not a completion model")
     tasks, cfg = _tasks(Path(data), limit_per_category, split)
+    gap = MISSING_GAP_VOXELS / (1 << models[0].config.depth)
     rows = {s.name: {r: [] for r in ["input", *runs]} for s in SETTINGS}
     t = time.perf_counter()
     for task in tasks:
@@ -96,47 +98,67 @@ def degrade(runs: list[str], data: str, limit_per_category: int | None = None, r
             pts, nrm, _ = partial_from_scan(scan, rng, s.views, s.holes, s.radius, s.noise)
             frame = scan_frame(pts.astype(np.float64))
             base = {"category": task.category, "shape_id": task.shape_id, "points": int(len(pts))}
-            rows[s.name]["input"].append({**base, "chamfer_x1e3": chamfer_distance(truth_pts, truth.to_cube(pts)) * 1e3})
+            seen = truth.to_cube(pts)
+            rows[s.name]["input"].append({**base, "chamfer_x1e3": chamfer_distance(truth_pts, seen) * 1e3,
+                                          "missing_x1e3": _x1e3(missing_distance(truth_pts, seen, seen, gap))})
             cloud = validate(pts, nrm)
             for run, m in zip(runs, models):
                 tree = scan_octree(cloud, m.config.depth, adaptive=m.model.arch.octree == "adaptive")
                 with torch.no_grad():
                     latent = m.model.encoder(OctreeTensors.from_octree(merge_octrees([tree])))
                 out, _ = decoded_points(m.model, latent, None, resolution, 0)[0]
-                value = (chamfer_distance(truth_pts, truth.to_cube(frame.to_world(out))) * 1e3 if len(out) else None)
-                rows[s.name][run].append({**base, "chamfer_x1e3": value})
+                out = truth.to_cube(frame.to_world(out)) if len(out) else out
+                rows[s.name][run].append({**base, **(
+                    {"chamfer_x1e3": chamfer_distance(truth_pts, out) * 1e3,
+                     "missing_x1e3": _x1e3(missing_distance(truth_pts, seen, out, gap))} if len(out) else
+                    {"chamfer_x1e3": None, "missing_x1e3": None})})
     table = {}
     for s in SETTINGS:
         entry = {"settings": asdict(s), "rows": {}}
         for name, per_shape in rows[s.name].items():
-            by_cat: dict[str, list[float]] = {}
-            for r in per_shape:
-                if r["chamfer_x1e3"] is not None:
-                    by_cat.setdefault(r["category"], []).append(r["chamfer_x1e3"])
-            res = {"per_shape": per_shape, "empty_outputs": sum(r["chamfer_x1e3"] is None for r in per_shape),
-                   "chamfer_x1e3_category_mean": (float(np.mean([np.mean(v) for v in by_cat.values()]))
-                                                  if by_cat else None), "minus_input": None}
-            if name != "input" and by_cat:
-                d = paired_difference({"per_shape": rows[s.name]["input"]}, {"per_shape": per_shape})
-                res["minus_input"] = asdict(d)
+            res = {"per_shape": per_shape, "empty_outputs": sum(r["chamfer_x1e3"] is None for r in per_shape)}
+            for metric in ("chamfer_x1e3", "missing_x1e3"):
+                res[f"{metric}_category_mean"] = _category_mean(per_shape, metric)
+                res[f"{metric}_minus_input"] = None
+                if name != "input" and res[f"{metric}_category_mean"] is not None:
+                    d = paired_difference({"per_shape": rows[s.name]["input"]}, {"per_shape": per_shape}, metric=metric)
+                    res[f"{metric}_minus_input"] = asdict(d)
             entry["rows"][name] = res
         table[s.name] = entry
     return {"runs": runs, "data": str(data), "split": split, "shapes": len(tasks), "resolution": resolution,
             "settings": table, "seconds": time.perf_counter() - t}
 
 
+def _x1e3(value: float | None) -> float | None:
+    return None if value is None else value * 1e3
+
+
+def _category_mean(rows: list[dict], metric: str) -> float | None:
+    by_cat: dict[str, list[float]] = {}
+    for r in rows:
+        if r.get(metric) is not None:
+            by_cat.setdefault(r["category"], []).append(r[metric])
+    return float(np.mean([np.mean(v) for v in by_cat.values()])) if by_cat else None
+
+
 def markdown(results: dict, labels: list[str]) -> str:
-    """One line per setting: the input's Chamfer and each run's, with its paired difference."""
-    head = "| scan | input itself | " + " | ".join(labels) + " |"
-    lines = [head, "|---|---|" + "---|" * len(labels)]
-    for name, entry in results["settings"].items():
-        cells = [f"{entry['rows']['input']['chamfer_x1e3_category_mean']:.3f}"]
-        for run in results["runs"]:
-            r, d = entry["rows"][run], entry["rows"][run]["minus_input"]
-            cell = "— (no output)" if d is None else (
-                f"{r['chamfer_x1e3_category_mean']:.3f} ({d['mean']:+.3f} [{d['low']:+.3f}, {d['high']:+.3f}])")
-            cells.append(cell + (f", {r['empty_outputs']} empty" if r["empty_outputs"] else ""))
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    """Per metric, one line per setting: the input's value and each run's, with its paired
+    difference from the input (negative: the model improves on the scan)."""
+    lines = []
+    for metric, title in (("chamfer_x1e3", "Chamfer x1e3 to the complete truth"),
+                          ("missing_x1e3", "missing part: mean squared distance x1e3 to the output")):
+        lines += [f"\n{title} (category mean; run - input with 95% bootstrap interval)\n",
+                  "| scan | input itself | " + " | ".join(labels) + " |", "|---|---|" + "---|" * len(labels)]
+        for name, entry in results["settings"].items():
+            value = entry["rows"]["input"][f"{metric}_category_mean"]
+            cells = ["—" if value is None else f"{value:.3f}"]
+            for run in results["runs"]:
+                r = entry["rows"][run]
+                d = r[f"{metric}_minus_input"]
+                cell = "— (no output)" if d is None else (f"{r[f'{metric}_category_mean']:.3f} "
+                                                         f"({d['mean']:+.3f} [{d['low']:+.3f}, {d['high']:+.3f}])")
+                cells.append(cell + (f", {r['empty_outputs']} empty" if r["empty_outputs"] else ""))
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 

@@ -9,7 +9,9 @@ point per sub-patch of the resolution^3 grid, and compared with its ground-truth
 Chamfer distance (reported x 10^3, per category and as the category mean, in unit-cube
 coordinates).  Shape completion decodes in the partial scan's frame; its output is mapped to the
 complete shape's own cube before the comparison, and the Chamfer distance of the partial input
-itself to the truth (what a model that adds nothing would score) is reported beside it.  Octree decoders without planes (O-CNN binary) give their finest octants' centres;
+itself to the truth (what a model that adds nothing would score) is reported beside it, and so is
+completion's own measure: the mean squared distance from the truth's missing part (points more
+than two finest voxels from the scan) to the output, and to the scan itself.  Octree decoders without planes (O-CNN binary) give their finest octants' centres;
 the point-set decoder its points; the AtlasNet decoder a 20 x 20 grid per patch.  --icp also
 reports the Chamfer distance after rigid ICP alignment of the prediction to the truth (as the
 paper's Table 4).  A shape whose decoder outputs nothing (no patch) has no Chamfer value: it is
@@ -38,7 +40,7 @@ from .files import json_text, write_atomic
 from .networks import AtlasNetDecoder, OctreeDecoder, PointSetDecoder, TorchSteps
 from .nn.tensors import OctreeTensors
 from .octree import LEAF, Octree
-from .octree.metrics import chamfer_distance, sample_patches
+from .octree.metrics import chamfer_distance, missing_distance, sample_patches
 from .octree.patches import patches_to_mesh
 from .octree.batch import split_octree
 from .train.loop import TrainConfig
@@ -122,6 +124,20 @@ def decoded_points(model, latent: torch.Tensor, octree_batch: Octree | None, res
     return out
 
 
+MISSING_GAP_VOXELS = 2
+"""Truth points farther than this many finest voxels from the partial scan form its missing part."""
+
+
+def _missing(sample, pts: np.ndarray, depth: int) -> dict:
+    """Completion rows: the missing part's distance to the output and to the input itself."""
+    gap = MISSING_GAP_VOXELS / (1 << depth)
+    inp = missing_distance(sample.points, sample.partial, sample.partial, gap)
+    if inp is None:
+        return {"missing_x1e3": None, "input_missing_x1e3": None}
+    out = missing_distance(sample.points, sample.partial, pts, gap) if len(pts) else None
+    return {"missing_x1e3": None if out is None else out * 1e3, "input_missing_x1e3": inp * 1e3}
+
+
 def _mean_or_none(values: list[float]) -> float | None:
     return float(np.mean(values)) if values else None
 
@@ -155,7 +171,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     records = task.dataset(cfg, split, seed, points=20_000, limit=limit, **extra)
     metrics = ("chamfer_x1e3", "chamfer_icp_x1e3") if align else ("chamfer_x1e3",)
     if completion:
-        metrics += ("input_chamfer_x1e3",)
+        metrics += ("input_chamfer_x1e3", "missing_x1e3", "input_missing_x1e3")
     per_cat: dict[str, dict[str, list[float]]] = {m: {} for m in metrics}
     per_shape: list[dict] = []
     confusion: dict[int, np.ndarray] = {}
@@ -192,8 +208,9 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
                 row.update({m: None for m in metrics})
             if sample.partial is not None:        # the do-nothing floor: the input itself
                 row["input_chamfer_x1e3"] = chamfer_distance(sample.points, sample.partial) * 1e3
+                row.update(_missing(sample, pts, cfg.depth))
             for m in metrics:
-                if row[m] is not None:
+                if row.get(m) is not None:
                     per_cat[m].setdefault(sample.category, []).append(row[m])
             sizes["truth_nodes"].append(row["truth_nodes"])
             if tree is not None:

@@ -3,8 +3,8 @@
     python -m model.figures --data DIR --runs NAME=RUN [NAME=RUN ...] --out PNG [--split test]
                             [--shapes 6] [--categories car chair ...]
 
-One row per test shape: the input (the encoder's view for image models), the truth (its adaptive
-octree's patches), each run's output (patch meshes; point sets as small splats; AtlasNet's
+One row per test shape: the input (the encoder's view for image models, the partial scan for
+completion models), the truth (its adaptive octree's patches; for completion in the scan's frame), each run's output (patch meshes; point sets as small splats; AtlasNet's
 patches as grid meshes), and the first run's patches coloured by octree depth.
 """
 
@@ -77,7 +77,7 @@ def figure(data: str, runs: list[tuple[str, str]], split: str = "test", shapes: 
     models = [(name, *load_run(path)) for name, path in runs]
     first_cfg = models[0][2]
     if len({cfg.task for _, _, cfg in models}) > 1:
-        raise ValueError("--runs must all be of one task (all image models or all autoencoders)")
+        raise ValueError("--runs must all be of one task (all image models, all autoencoders or all completion models)")
     records = TASKS[first_cfg.task].dataset(first_cfg, split, 0)
     chosen, seen = [], set()
     for i, s in enumerate(records.samples):             # one shape per category, in order
@@ -87,7 +87,8 @@ def figure(data: str, runs: list[tuple[str, str]], split: str = "test", shapes: 
         if len(chosen) == shapes:
             break
     image_input = first_cfg.task == "image"
-    heads = (["input"] if image_input else []) + ["truth"] + [n for n, _, _ in models] + [f"{models[0][0]} by depth"]
+    scan_input = first_cfg.task == "completion"
+    heads = (["input"] if image_input else ["partial scan"] if scan_input else []) + ["truth"] + [n for n, _, _ in models] + [f"{models[0][0]} by depth"]
     sheet = Image.new("RGB", (TILE * len(heads), 18 + TILE * len(chosen)), (255, 255, 255))
     draw = ImageDraw.Draw(sheet)
     for c, h in enumerate(heads):
@@ -106,6 +107,9 @@ def figure(data: str, runs: list[tuple[str, str]], split: str = "test", shapes: 
             view = s.images[eval_view(s.shape_id, len(s.images))]
             a = view[..., 3:4].astype(np.float64) / 255.0
             tiles.append(Image.fromarray((view[..., :3] * a + 255 * (1 - a)).astype(np.uint8)).resize((TILE, TILE)))
+        if scan_input:                  # the partial scan in the scan frame's cube, as the model saw it
+            cube = s.octree.normalizations[0].to_cube(s.truth_frame.to_world(s.partial))
+            tiles.append(tile(splats(cube[:: max(1, len(cube) // 2500)], radius=0.006)))
         tiles.append(tile(patches_to_mesh(s.octree, world=False)))
         tiles += [tile(col[r][0]) for col in columns]
         coloured = columns[0][r][1]

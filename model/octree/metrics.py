@@ -85,6 +85,19 @@ def chamfer_distance(ground_truth: np.ndarray, predicted: np.ndarray) -> float:
     return float((d_gp ** 2).mean() + (d_pg ** 2).mean())
 
 
+def missing_distance(ground_truth: np.ndarray, observed: np.ndarray, predicted: np.ndarray,
+                     gap: float) -> float | None:
+    """Shape completion's own measure: the mean squared distance from the truth points farther
+    than ``gap`` from every ``observed`` point (the missing part) to ``predicted``; None when
+    nothing is missing.  A do-nothing prediction (the observed points) scores at least gap^2."""
+    g = _nonempty(ground_truth)
+    far = cKDTree(_nonempty(observed)).query(g, workers=-1)[0] > gap
+    if not far.any():
+        return None
+    d, _ = cKDTree(_nonempty(predicted)).query(g[far], workers=-1)
+    return float((d ** 2).mean())
+
+
 def hausdorff_distance(a: np.ndarray, b: np.ndarray) -> float:
     """Symmetric Hausdorff distance between two point sets."""
     a, b = _nonempty(a), _nonempty(b)

@@ -77,6 +77,9 @@ def test_completion_training_resumes_and_evaluates_against_the_input_floor(scan_
         assert res["task"] == "completion" and res["normals"] == normals and res["shapes"] == 4
         floor = [r["input_chamfer_x1e3"] for r in res["per_shape"]]
         assert all(0 < f < 50 for f in floor)                 # partial scans of the truth: close, not equal
+        # the missing part lies beyond two finest voxels (1/16 at depth 5) of the scan, by definition
+        assert all(r["input_missing_x1e3"] is None or r["input_missing_x1e3"] > (2 / 32) ** 2 * 1e3
+                   for r in res["per_shape"])
         assert res["input_chamfer_x1e3_category_mean"] == pytest.approx(
             np.mean([np.mean([r["input_chamfer_x1e3"] for r in res["per_shape"] if r["category"] == c])
                      for c in {r["category"] for r in res["per_shape"]}]))
@@ -157,3 +160,5 @@ def test_degradation_table_pairs_settings_and_reads_fewer_views_as_worse_input(s
     floor = {k: v["rows"]["input"]["chamfer_x1e3_category_mean"] for k, v in res["settings"].items()}
     assert floor["1 view"] > floor[SETTINGS[0].name]
     assert floor["noise 0.02"] > floor["noise 0.01"]
+    missing = {k: v["rows"]["input"]["missing_x1e3_category_mean"] for k, v in res["settings"].items()}
+    assert missing["1 view"] > missing[SETTINGS[0].name] > (2 / 32) ** 2 * 1e3     # at least the gap, squared
