@@ -13,7 +13,7 @@ from fastapi.middleware.cors import CORSMiddleware
 from . import errors
 from .engine import Engine
 from .limits import BodyLimit
-from .routers import health, models, shapes
+from .routers import demo, health, models, shapes
 from .settings import Settings
 
 
@@ -38,7 +38,7 @@ def create_app(settings: Settings | None = None, engine: Engine | None = None) -
     if engine is not None:
         app.state.engine = engine                               # usable without the lifespan (ASGI test tools)
     errors.install(app)
-    for r in (shapes.router, models.router, health.router):
+    for r in (shapes.router, models.router, health.router, demo.router):
         app.include_router(r)
     if settings.origins():
         app.add_middleware(CORSMiddleware, allow_origins=settings.origins(), allow_methods=["GET", "POST"],

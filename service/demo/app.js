@@ -1,0 +1,304 @@
+// The demo page: posts a file to the public API (/v1/...) and shows the returned GLB in a three.js
+// viewer. Every URL is relative to the page, so the service may sit behind a path prefix.
+import * as THREE from 'three';
+import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+
+const TASKS = {   // radio value -> endpoint, multipart field, served model task (null: needs no model), hint
+  'image-to-shape': { field: 'image', model: 'image-to-shape', hint: 'PNG, JPEG, WebP, GIF, BMP or TIFF of one object.' },
+  'complete': { field: 'points', model: 'completion', hint: 'A partial scan: PLY, XYZ/TXT, NPY, NPZ or OBJ vertices.' },
+  'octree': { field: 'shape', model: null, hint: 'A mesh (OBJ, OFF, STL, PLY, GLB, glTF) or a point cloud.' },
+  'classify': { field: 'shape', model: 'classify', hint: 'A mesh or a point cloud.' },
+};
+
+const $ = (id) => document.getElementById(id);
+const state = { input: null, last: null, served: null };
+const demo = { loads: 0, last: null, errors: 0 };     // read by the browser test
+window.aocnnDemo = demo;
+
+function task() { return document.querySelector('input[name=task]:checked').value; }
+
+function setTask(name) {
+  document.querySelector(`input[name=task][value="${name}"]`).checked = true;
+  onTaskChange();
+}
+
+function onTaskChange() {
+  const t = TASKS[task()];
+  $('file-hint').textContent = t.hint;
+  if (state.served && t.model && !state.served.has(t.model)) {
+    status(`this service has no ${t.model} model (GET /v1/models lists what it serves)`, true);
+  } else {
+    status('');
+  }
+  $('run').disabled = !state.input;
+}
+
+function status(text, error = false) {
+  $('status').textContent = text;
+  $('status').className = error ? 'error' : 'muted';
+}
+
+function choose(blob, name, button = null) {
+  state.input = { blob, name };
+  $('chosen').textContent = `chosen: ${name} (${(blob.size / 1024).toFixed(1)} KiB)`;
+  document.querySelectorAll('#examples button').forEach((b) => b.classList.toggle('chosen', b === button));
+  $('run').disabled = false;
+}
+
+function headers() {
+  const key = $('key').value.trim();
+  return key ? { Authorization: `Bearer ${key}` } : {};
+}
+
+async function errorText(response) {
+  try {
+    const e = (await response.json()).error;
+    return `${response.status} ${e.code}: ${e.message}${e.hint ? ` (${e.hint})` : ''}`;
+  } catch {
+    return `${response.status} ${response.statusText}`;
+  }
+}
+
+async function loadModels() {
+  const response = await fetch('v1/models', { headers: headers() });
+  if (!response.ok) {
+    $('models').textContent = response.status === 401
+      ? 'this service needs an API key: paste it below' : `models: ${await errorText(response)}`;
+    return;
+  }
+  const models = (await response.json()).models;
+  state.served = new Set(models.map((m) => m.task));
+  $('models').textContent = models.length
+    ? `serving: ${models.map((m) => `${m.task} (${m.name} ${m.version})`).join(', ')}; octrees need no model`
+    : 'no models installed: only shape → octree works';
+  onTaskChange();
+}
+
+async function loadExamples() {
+  const response = await fetch('demo/examples');
+  const list = response.ok ? (await response.json()).examples : [];
+  const box = $('examples');
+  box.replaceChildren();
+  if (!list.length) box.textContent = 'none bundled';
+  for (const ex of list) {
+    const b = document.createElement('button');
+    b.type = 'button';
+    b.textContent = ex.name;
+    b.dataset.example = ex.name;
+    b.title = `posts to /v1/${ex.endpoint}`;
+    b.addEventListener('click', async () => {
+      const r = await fetch(ex.url);
+      if (!r.ok) { status(`example ${ex.name}: ${r.status}`, true); return; }
+      setTask(ex.endpoint);
+      choose(await r.blob(), ex.name, b);
+    });
+    box.appendChild(b);
+  }
+}
+
+function requestUrl(endpoint, format) {
+  const q = new URLSearchParams();
+  const depth = $('depth').value.trim();
+  if (depth) q.set('depth', depth);
+  if (endpoint !== 'classify') {
+    if ($('color').checked) q.set('color_by_depth', 'true');
+    if (format) q.set('format', format);
+  }
+  const s = q.toString();
+  return `v1/${endpoint}${s ? `?${s}` : ''}`;
+}
+
+async function post(request, format = null) {
+  const body = new FormData();
+  body.append(request.field, request.blob, request.name);
+  return fetch(requestUrl(request.endpoint, format), { method: 'POST', body, headers: headers() });
+}
+
+async function run() {
+  if (!state.input) return;
+  const endpoint = task();
+  const request = { endpoint, field: TASKS[endpoint].field, ...state.input };
+  $('run').disabled = true;
+  status(`posting ${request.name} to /v1/${endpoint}…`);
+  const started = performance.now();
+  try {
+    const response = await post(request);
+    const seconds = ((performance.now() - started) / 1000).toFixed(2);
+    if (!response.ok) {
+      demo.errors += 1;
+      status(await errorText(response), true);
+      return;
+    }
+    if (endpoint === 'classify') {
+      showClasses(await response.json());
+      status(`classified in ${seconds} s`);
+      return;
+    }
+    state.last = request;
+    showHeaders(response);
+    const buffer = await response.arrayBuffer();
+    status(`${(buffer.byteLength / 1024).toFixed(1)} KiB GLB in ${seconds} s; loading it into the viewer…`);
+    const detail = await viewer.show(buffer);
+    $('s-mesh').textContent = `${detail.triangles} / ${detail.vertices}`;
+    status(`${(buffer.byteLength / 1024).toFixed(1)} KiB GLB in ${seconds} s`);
+    document.querySelectorAll('#downloads button').forEach((b) => { b.disabled = false; });
+  } catch (err) {
+    demo.errors += 1;
+    status(`failed: ${err.message || err}`, true);
+  } finally {
+    $('run').disabled = false;
+  }
+}
+
+function showHeaders(response) {
+  const h = (name) => response.headers.get(name) || '–';
+  const model = response.headers.get('X-Model-Name');
+  $('s-model').textContent = model ? `${model} ${h('X-Model-Version')}` : '(no model: octree)';
+  $('s-nodes').textContent = h('X-Octree-Nodes');
+  $('s-leaves').textContent = h('X-Octree-Leaves');
+  $('s-timing').textContent = h('Server-Timing');
+}
+
+function showClasses(result) {
+  const box = $('classes');
+  const rows = result.top.map((c) => {
+    const pct = (100 * c.probability).toFixed(1);
+    return `<tr><td>${escapeHtml(c.category)}</td><td>${pct}%</td>`
+      + `<td><span class="bar" style="width:${Math.round(2 * pct)}px"></span></td></tr>`;
+  }).join('');
+  box.innerHTML = `<table><caption>${escapeHtml(result.model)} ${escapeHtml(result.version)}</caption>`
+    + `<tr><th>category</th><th>probability</th><th></th></tr>${rows}</table>`;
+  box.hidden = false;
+}
+
+function escapeHtml(s) {
+  return String(s).replace(/[&<>"']/g, (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;', "'": '&#39;' })[c]);
+}
+
+async function download(format) {
+  if (!state.last) return;
+  status(`requesting ${format.toUpperCase()}…`);
+  const response = await post(state.last, format);
+  if (!response.ok) { status(await errorText(response), true); return; }
+  const disposition = response.headers.get('Content-Disposition') || '';
+  const match = /filename="([^"]+)"/.exec(disposition);
+  const a = document.createElement('a');
+  a.href = URL.createObjectURL(await response.blob());
+  a.download = match ? match[1] : `${state.last.endpoint}.${format}`;
+  document.body.appendChild(a);
+  a.click();
+  a.remove();
+  setTimeout(() => URL.revokeObjectURL(a.href), 10000);
+  status(`downloaded ${a.download}`);
+}
+
+// The viewer: one scene, rendered on demand (when the camera moves or a mesh arrives).
+const viewer = {
+  init() {
+    if (this.renderer) return;
+    const el = $('viewer');
+    el.replaceChildren();
+    this.renderer = new THREE.WebGLRenderer({ antialias: true, alpha: true, preserveDrawingBuffer: true });
+    this.renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
+    el.appendChild(this.renderer.domElement);
+    this.scene = new THREE.Scene();
+    this.camera = new THREE.PerspectiveCamera(35, 1, 0.001, 100);
+    this.scene.add(new THREE.HemisphereLight(0xffffff, 0x5a6270, 1.6));
+    const key = new THREE.DirectionalLight(0xffffff, 1.8);
+    key.position.set(0.5, 1, 0.8);
+    this.camera.add(key);
+    this.scene.add(this.camera);
+    this.controls = new OrbitControls(this.camera, this.renderer.domElement);
+    this.controls.addEventListener('change', () => this.render());
+    new ResizeObserver(() => this.resize()).observe(el);
+    this.resize();
+  },
+  resize() {
+    const el = $('viewer');
+    this.renderer.setSize(el.clientWidth, el.clientHeight, false);
+    this.camera.aspect = el.clientWidth / Math.max(1, el.clientHeight);
+    this.camera.updateProjectionMatrix();
+    this.render();
+  },
+  render() { if (this.renderer) this.renderer.render(this.scene, this.camera); },
+  async show(buffer) {
+    this.init();
+    const el = $('viewer');
+    el.dataset.state = 'loading';
+    let gltf;
+    try {
+      gltf = await new GLTFLoader().parseAsync(buffer, '');
+    } catch (err) {
+      el.dataset.state = 'error';
+      throw err;
+    }
+    if (this.object) {
+      this.scene.remove(this.object);
+      this.object.traverse((o) => { if (o.geometry) o.geometry.dispose(); });
+    }
+    const object = gltf.scene;
+    let vertices = 0; let triangles = 0; let meshes = 0;
+    const outlines = [];
+    object.traverse((o) => {
+      if (!o.isMesh) return;
+      meshes += 1;
+      const n = o.geometry.attributes.position.count;
+      vertices += n;
+      triangles += (o.geometry.index ? o.geometry.index.count : n) / 3;
+      outlines.push(o);
+    });
+    for (const o of outlines) {          // each patch's outline: its edges used by one triangle only
+      const edges = new THREE.LineSegments(new THREE.EdgesGeometry(o.geometry, 30),
+        new THREE.LineBasicMaterial({ color: 0x263040, transparent: true, opacity: 0.35 }));
+      o.add(edges);
+    }
+    this.object = object;
+    this.scene.add(object);
+    this.frame(object);
+    this.render();
+    const detail = { vertices, triangles, meshes, bytes: buffer.byteLength };
+    demo.loads += 1;
+    demo.last = detail;
+    Object.assign(el.dataset, { state: 'loaded', vertices, triangles });
+    el.dispatchEvent(new CustomEvent('mesh-load', { detail, bubbles: true }));
+    return detail;
+  },
+  frame(object) {
+    const box = new THREE.Box3().setFromObject(object);
+    const center = box.getCenter(new THREE.Vector3());
+    const radius = Math.max(box.getBoundingSphere(new THREE.Sphere()).radius, 1e-3);
+    const direction = new THREE.Vector3(0.9, 0.55, 1.3).normalize();
+    const corners = [];
+    for (let i = 0; i < 8; i += 1) {
+      corners.push(new THREE.Vector3(i & 1 ? box.max.x : box.min.x, i & 2 ? box.max.y : box.min.y,
+        i & 4 ? box.max.z : box.min.z));
+    }
+    // start where the bounding sphere fits, then move in until the box fills ~90% of the view
+    let distance = radius / Math.sin(THREE.MathUtils.degToRad(this.camera.fov / 2));
+    for (let i = 0; i < 4; i += 1) {
+      this.camera.position.copy(center).addScaledVector(direction, distance);
+      this.camera.lookAt(center);
+      this.camera.updateMatrixWorld();
+      const extent = Math.max(...corners.map((c) => {
+        const p = c.clone().project(this.camera);
+        return Math.max(Math.abs(p.x), Math.abs(p.y));
+      }));
+      distance = Math.max(distance * extent / 0.9, radius * 1.1);
+    }
+    this.camera.position.copy(center).addScaledVector(direction, distance);
+    this.camera.near = distance / 100;
+    this.camera.far = distance * 100;
+    this.camera.updateProjectionMatrix();
+    this.controls.target.copy(center);
+    this.controls.update();
+  },
+};
+
+document.querySelectorAll('input[name=task]').forEach((r) => r.addEventListener('change', onTaskChange));
+$('file').addEventListener('change', (e) => { if (e.target.files[0]) choose(e.target.files[0], e.target.files[0].name); });
+$('run').addEventListener('click', run);
+$('key').addEventListener('change', loadModels);
+document.querySelectorAll('#downloads button').forEach((b) => b.addEventListener('click', () => download(b.dataset.format)));
+loadModels();
+loadExamples();
