@@ -1,12 +1,13 @@
 """Compare evaluation results: the Table 3 layout in Markdown, and paired per-shape differences.
 
-    python -m model.results_table BASE.json OTHER.json [...] [--bootstrap 10000] [--icp]
+    python -m model.results_table BASE.json OTHER.json [...] [--bootstrap 10000] [--icp | --missing]
 
 Every file is written by ``python -m model.evaluate`` on the same split.  Besides the per-category
 table, each result after the first is compared with the first shape by shape: the difference of
 category means with a 95% bootstrap interval (shapes resampled within categories) and how many
 shapes each side wins, so that a gap can be told from test-set noise.  ``--icp`` compares the Chamfer distances after
-ICP alignment (results evaluated with ``--icp``).  Shapes a model decoded to nothing have no
+ICP alignment (results evaluated with ``--icp``); ``--missing`` compares completion's
+missing-part distance.  Completion results get a last row: the partial input itself.  Shapes a model decoded to nothing have no
 value and are left out of its pairs; the table counts them.
 """
 
@@ -67,6 +68,12 @@ def markdown_table(results: list[dict], labels: list[str], metric: str = "chamfe
         truth = f"{o['truth_nodes']:.0f}" if _finite(o.get("truth_nodes")) else "—"
         lines.append(f"| {label} | " + " | ".join(cells) +
                      f" | {mean_cell} | {r.get('empty_outputs', 0)} | {decoded} | {truth} |")
+    floor = results[0].get(f"input_{metric}")
+    if isinstance(floor, dict):        # completion: what the partial input itself scores
+        cells = [f"{floor[c]:.2f}" if _finite(floor.get(c)) else "—" for c in cats]
+        mean = results[0].get(f"input_{metric}_category_mean")
+        lines.append("| the partial input itself | " + " | ".join(cells) +
+                     f" | {f'**{mean:.3f}**' if _finite(mean) else '—'} | — | — | — |")
     return "\n".join(lines)
 
 
@@ -100,6 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("results", nargs="+", help="results JSONs of python -m model.evaluate; the first is the base")
     ap.add_argument("--bootstrap", type=int, default=10_000, help="bootstrap draws for the intervals (default 10000)")
     ap.add_argument("--icp", action="store_true", help="compare the Chamfer distances after ICP alignment")
+    ap.add_argument("--missing", action="store_true",
+                    help="completion: compare the missing part's distance to the output instead of the Chamfer distance")
     args = ap.parse_args(argv)
     try:
         if args.bootstrap < 100:
@@ -107,10 +116,13 @@ def main(argv: list[str] | None = None) -> int:
         results = [load_results(p) for p in args.results]
         labels = [Path(p).stem + (f" (oracle {r['oracle']})" if r.get("oracle", "none") != "none" else "")
                   for r, p in zip(results, args.results)]
-        metric = "chamfer_icp_x1e3" if args.icp else "chamfer_x1e3"
+        if args.icp and args.missing:
+            raise ValueError("give --icp or --missing, not both")
+        metric = "chamfer_icp_x1e3" if args.icp else "missing_x1e3" if args.missing else "chamfer_x1e3"
         print(markdown_table(results, labels, metric))
         if len(results) > 1:
-            what = "Chamfer x1e3 after ICP" if args.icp else "Chamfer x1e3"
+            what = ("Chamfer x1e3 after ICP" if args.icp else "missing part's distance x1e3" if args.missing
+                    else "Chamfer x1e3")
             print(f"\nPaired against {labels[0]} (other − base, {what} category mean, 95% bootstrap):")
             print("| run | difference | 95% interval | base better / other better | shapes |\n|---|---|---|---|---|")
             for label, r in zip(labels[1:], results[1:]):

@@ -42,3 +42,25 @@ def test_table_and_command(tmp_path, capsys):
     pb.write_text("{}")
     assert main([str(pa), str(pb)]) == 2
     assert "no per-shape rows" in capsys.readouterr().err
+
+
+def test_completion_tables_end_with_the_partial_input_and_compare_the_missing_part(tmp_path, capsys):
+    a = results({"car": [1.0, 3.0]})
+    a.update(input_chamfer_x1e3={"car": 0.25}, input_chamfer_x1e3_category_mean=0.25,
+             missing_x1e3={"car": 2.0}, missing_x1e3_category_mean=2.0,
+             input_missing_x1e3={"car": 9.0}, input_missing_x1e3_category_mean=9.0)
+    for r, v in zip(a["per_shape"], (1.0, 3.0)):
+        r["missing_x1e3"] = v
+    lines = markdown_table([a], ["aocnn"]).splitlines()
+    assert lines[-1].startswith("| the partial input itself | 0.25 | **0.250**")
+    assert markdown_table([a], ["aocnn"], "missing_x1e3").splitlines()[-1].startswith(
+        "| the partial input itself | 9.00 | **9.000**")
+    b = json.loads(json.dumps(a))
+    for r in b["per_shape"]:
+        r["missing_x1e3"] += 0.5
+    pa, pb = tmp_path / "a.json", tmp_path / "b.json"
+    pa.write_text(json.dumps(a))
+    pb.write_text(json.dumps(b))
+    assert main([str(pa), str(pb), "--missing", "--bootstrap", "200"]) == 0
+    assert "| b | +0.500 | [+0.500, +0.500] | 2 / 0 | 2 |" in capsys.readouterr().out
+    assert main([str(pa), str(pb), "--missing", "--icp"]) == 2
