@@ -37,6 +37,11 @@ from .octree.pointcloud import normalization_of
 from .results_table import paired_difference
 
 
+MIN_POINTS = 100
+"""Scans with fewer points are not completed (the service's own minimum); such shapes are left
+out of every row of that setting and counted."""
+
+
 @dataclass(frozen=True)
 class PartialSettings:
     """One way of cutting partial scans (ranges inclusive; radii and noise as fractions of the
@@ -96,8 +101,12 @@ def degrade(runs: list[str], data: str, limit_per_category: int | None = None, r
         for s in SETTINGS:
             rng = np.random.default_rng(stable_hash("degrade", task.shape_id))
             pts, nrm, _ = partial_from_scan(scan, rng, s.views, s.holes, s.radius, s.noise)
-            frame = scan_frame(pts.astype(np.float64))
             base = {"category": task.category, "shape_id": task.shape_id, "points": int(len(pts))}
+            if len(pts) < MIN_POINTS:         # the holes took (almost) everything: nothing to complete
+                for name in rows[s.name]:
+                    rows[s.name][name].append({**base, "chamfer_x1e3": None, "missing_x1e3": None})
+                continue
+            frame = scan_frame(pts.astype(np.float64))
             seen = truth.to_cube(pts)
             rows[s.name]["input"].append({**base, "chamfer_x1e3": chamfer_distance(truth_pts, seen) * 1e3,
                                           "missing_x1e3": _x1e3(missing_distance(truth_pts, seen, seen, gap))})
@@ -116,7 +125,8 @@ def degrade(runs: list[str], data: str, limit_per_category: int | None = None, r
     for s in SETTINGS:
         entry = {"settings": asdict(s), "rows": {}}
         for name, per_shape in rows[s.name].items():
-            res = {"per_shape": per_shape, "empty_outputs": sum(r["chamfer_x1e3"] is None for r in per_shape)}
+            res = {"per_shape": per_shape, "too_few_points": sum(r["points"] < MIN_POINTS for r in per_shape),
+                   "empty_outputs": sum(r["chamfer_x1e3"] is None and r["points"] >= MIN_POINTS for r in per_shape)}
             for metric in ("chamfer_x1e3", "missing_x1e3"):
                 res[f"{metric}_category_mean"] = _category_mean(per_shape, metric)
                 res[f"{metric}_minus_input"] = None
@@ -158,7 +168,9 @@ def markdown(results: dict, labels: list[str]) -> str:
                 cell = "— (no output)" if d is None else (f"{r[f'{metric}_category_mean']:.3f} "
                                                          f"({d['mean']:+.3f} [{d['low']:+.3f}, {d['high']:+.3f}])")
                 cells.append(cell + (f", {r['empty_outputs']} empty" if r["empty_outputs"] else ""))
-            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+            small = entry["rows"]["input"]["too_few_points"]
+            label = name + (f" ({small} scans under {MIN_POINTS} points left out)" if small else "")
+            lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 

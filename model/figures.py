@@ -11,6 +11,7 @@ patches as grid meshes), and the first run's patches coloured by octree depth.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -75,7 +76,7 @@ def figure(data: str, runs: list[tuple[str, str]], split: str = "test", shapes: 
            categories: list[str] | None = None) -> Image.Image:
     """The picture described in the module docstring."""
     models = [(name, *load_run(path)) for name, path in runs]
-    first_cfg = models[0][2]
+    first_cfg = dataclasses.replace(models[0][2], data=data)     # the dataset asked for, not the run's
     if len({cfg.task for _, _, cfg in models}) > 1:
         raise ValueError("--runs must all be of one task (all image models, all autoencoders or all completion models)")
     records = TASKS[first_cfg.task].dataset(first_cfg, split, 0)

@@ -148,9 +148,13 @@ def test_completion_needs_a_dataset_with_partial_scans(tiny_data, tmp_path):
         Trainer(config(tiny_data, tmp_path / "r", task="completion"))
 
 
-def test_degradation_table_pairs_settings_and_reads_fewer_views_as_worse_input(scan_data, tmp_path):
-    from model.degrade import SETTINGS, main
+def test_degradation_table_pairs_settings_and_reads_fewer_views_as_worse_input(scan_data, tmp_path, monkeypatch):
+    import model.degrade as degrade
+    from model.degrade import PartialSettings, main
 
+    # a setting whose holes remove every point: left out of its rows and counted, not a crash
+    SETTINGS = (*degrade.SETTINGS, PartialSettings("no points left", views=(1, 1), holes=(9, 9), radius=(2.0, 2.0)))
+    monkeypatch.setattr(degrade, "SETTINGS", SETTINGS)
     Trainer(config(scan_data, tmp_path / "run", task="completion", iters=2)).run()
     out = tmp_path / "deg.json"
     assert main([str(tmp_path / "run"), "--data", str(scan_data), "--limit-per-category", "1",
@@ -160,5 +164,7 @@ def test_degradation_table_pairs_settings_and_reads_fewer_views_as_worse_input(s
     floor = {k: v["rows"]["input"]["chamfer_x1e3_category_mean"] for k, v in res["settings"].items()}
     assert floor["1 view"] > floor[SETTINGS[0].name]
     assert floor["noise 0.02"] > floor["noise 0.01"]
+    empty = res["settings"]["no points left"]["rows"]["input"]
+    assert empty["too_few_points"] == 2 and empty["chamfer_x1e3_category_mean"] is None
     missing = {k: v["rows"]["input"]["missing_x1e3_category_mean"] for k, v in res["settings"].items()}
     assert missing["1 view"] > missing[SETTINGS[0].name] > (2 / 32) ** 2 * 1e3     # at least the gap, squared
