@@ -25,7 +25,7 @@ from pathlib import Path
 
 import httpx
 
-FIELDS = {"image-to-shape": "image", "complete": "points", "octree": "shape"}
+FIELDS = {"image-to-shape": "image", "complete": "points", "octree": "shape", "classify": "shape"}
 TARGET_OUTSIDE = 0.15
 
 

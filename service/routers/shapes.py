@@ -90,7 +90,7 @@ async def octree(shape: UploadFile = File(..., description="a mesh (OBJ, OFF, ST
 
 @router.post("/classify", response_model=ClassifyResponse, responses=ERROR_RESPONSES,
              summary="A mesh or point cloud -> its most likely categories")
-async def classify(shape: UploadFile = File(..., description="a mesh or point cloud"),
+async def classify(response: Response, shape: UploadFile = File(..., description="a mesh or point cloud"),
                    top_k: int = Query(5, ge=1, le=50, description="how many categories to return"),
                    vote: bool = Query(False, description="average over 12 rotations about the up axis "
                                       "(the paper's test-time vote; 12x the work)"),
@@ -99,5 +99,6 @@ async def classify(shape: UploadFile = File(..., description="a mesh or point cl
     data, filename = await _read(shape)
     timer = StageTimer(eng.metrics)
     top = await eng.limiter.run(lambda: eng.classify(data, filename, top_k, vote, timer), eng.settings.timeout_s)
+    response.headers["Server-Timing"] = timer.header()
     return ClassifyResponse(model=b.name, version=b.version,
                             top=[ClassScore(category=c, probability=p) for c, p in top])

@@ -220,6 +220,7 @@ def test_classify_returns_the_models_top_categories_with_and_without_the_12_rota
         assert r.status_code == 200, r.text
         body = r.json()
         assert body["model"] == "classify-test" and len(body["top"]) == 2
+        assert {"decode_input", "octree_build", "encoder"} <= {t.split(";")[0] for t in r.headers["server-timing"].split(", ")}
         want = _torch_probabilities(model, pts, normals, cfg.depth, rotations)
         order = np.argsort(-want)[:2]
         assert [t["category"] for t in body["top"]] == [cfg.categories[i] for i in order]
