@@ -71,10 +71,10 @@ def measure(task: str, arch: str, depth: int, batch: int, steps: int, threads: i
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--depths", type=int, nargs="+", default=[6, 7, 8])
-    ap.add_argument("--batch", type=int, default=8)
-    ap.add_argument("--steps", type=int, default=5)
-    ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--depths", type=int, nargs="+", default=[6, 7, 8], help="octree depths (default 6 7 8)")
+    ap.add_argument("--batch", type=int, default=8, help="shapes per step, one per category in turn (default 8)")
+    ap.add_argument("--steps", type=int, default=5, help="timed steps after a warm-up, median taken (default 5)")
+    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     ap.add_argument("--task", choices=sorted(TASKS), default="autoencoder",
                     help="autoencoder (aocnn vs ocnn-patch, default) or classify (aocnn vs ocnn: paper Table 1)")
     ap.add_argument("--child", nargs=2, help=argparse.SUPPRESS)

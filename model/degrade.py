@@ -181,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", required=True, help="results JSON")
     ap.add_argument("--limit-per-category", type=int, default=None, help="test shapes per category (default all)")
     ap.add_argument("--split", default="test", choices=("train", "val", "test"), help="split (default test)")
-    ap.add_argument("--labels", nargs="+", default=None, help="names of the runs in the table")
+    ap.add_argument("--labels", nargs="+", default=None, help="names of the runs in the table (default: folder names)")
     args = ap.parse_args(argv)
     try:
         if args.labels and len(args.labels) != len(args.runs):

@@ -60,11 +60,15 @@ def _mains():
     from model.calibrate import main as calibrate_main
     from bench.onnx_decode import main as bench_onnx_main
     from bench.load import main as bench_load_main
+    from bench.octree_scaling import main as bench_scaling_main
+    from bench.train_step import main as bench_step_main
+    from model.degrade import main as degrade_main
     return {"model.train": train_main, "model.evaluate": evaluate_main, "model.data": data_main,
             "model.octree": octree_main, "model.results_table": table_main, "model.figures": figures_main,
             "model.release": release_main, "model.calibrate": calibrate_main, "export": export_main,
             "export.quantize": quantize_main, "service": service_main, "bench.onnx_decode": bench_onnx_main,
-            "bench.load": bench_load_main}
+            "bench.load": bench_load_main, "bench.octree_scaling": bench_scaling_main,
+            "bench.train_step": bench_step_main, "model.degrade": degrade_main}
 
 
 @pytest.mark.parametrize("name", sorted(_mains()))
