@@ -32,32 +32,24 @@ def _rss_mb() -> float:
 
 def measure(case: str, mesh: str, points: int, depth: int, repeats: int) -> dict:
     """In a child process: median build time and the peak memory above the loaded points."""
-    from bench.octree_build import import_ocnn, ocnn_inputs, sample_points
-    from model.octree import build_octree
+    import torch
 
+    from bench.octree_build import import_ocnn, ocnn_case, ocnn_inputs, ours_case, sample_points
+
+    torch.set_num_threads(1)
     pts, nrm = sample_points(mesh, points)
     if case == "ocnn full":
-        import torch
-        torch.set_num_threads(1)
-        ocnn = import_ocnn()
-        xyz, n = ocnn_inputs(pts, nrm)
-
-        def run():
-            octree = ocnn.octree.Octree(depth=depth, full_depth=2)
-            octree.build_octree(ocnn.octree.Points(points=xyz, normals=n))
-            octree.construct_all_neigh()
-            return int(sum(int(c) for c in octree.nnum))
+        build = ocnn_case(case, import_ocnn(), *ocnn_inputs(pts, nrm), depth, True, 1)
     else:
-        def run():
-            tree = build_octree((pts, nrm), depth, adaptive=case == "ours adaptive")
-            return int(sum(tree.nodes_per_depth()))
+        build = ours_case(case, pts, nrm, depth, case == "ours adaptive", [], 1)
     base = _rss_mb()
-    times, nodes = [], 0
+    times = []
     for _ in range(repeats + 1):
         t = time.perf_counter()
-        nodes = run()
+        tree = build.run()
         times.append(time.perf_counter() - t)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    nodes = int(tree.nnum.sum()) if case == "ocnn full" else int(sum(tree.nodes_per_depth()))
     return {"case": case, "points": points, "depth": depth, "nodes": nodes,
             "seconds": statistics.median(times[1:]), "memory_mb": peak - base}
 

@@ -152,10 +152,10 @@ def export(source: str | Path, out: str | Path, name: str | None = None, force: 
             write_atomic(path, g.model)
             specs[g.name] = GraphSpec(g.name, path.name, sha256_file(path), g.inputs, g.outputs).to_json()
         inp, outp = _io_spec(src, task)
-        weights = src.meta.get("weights_sha256")
+        weights = src.meta.get("weights_sha256") or (specs.get("decoder_start") or specs["octree_encoder"])["sha256"]
         meta = {
             "format": BUNDLE_FORMAT, "task": task, "name": name or task,
-            "version": f"{importlib.metadata.version('adaptive-ocnn')}+{(weights or specs['octree_encoder' if task == 'classify' else 'decoder_start']['sha256'])[:12]}",
+            "version": f"{importlib.metadata.version('adaptive-ocnn')}+{weights[:12]}",
             "octree": _octree_spec(src), "input": inp, "output": outp,
             "categories": list(src.config.categories or CATEGORIES),
             "graphs": specs,

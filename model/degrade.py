@@ -32,7 +32,7 @@ from .files import json_text, write_atomic
 from .nn.tensors import OctreeTensors
 from .octree import scan_frame, scan_octree, validate
 from .octree.batch import merge_octrees
-from .octree.metrics import chamfer_distance, missing_distance
+from .octree.metrics import chamfer_distance, mean_squared_distance, missing_part
 from .octree.pointcloud import normalization_of
 from .results_table import paired_difference
 
@@ -67,6 +67,9 @@ SETTINGS = (
 def _tasks(data: Path, limit_per_category: int | None, split: str = "test") -> tuple[list[ShapeTask], BuildConfig]:
     manifest = json.loads((data / "manifest.json").read_text())
     cfg = BuildConfig(**manifest["config"])
+    first = next((r for r in manifest["records"] if r["split"] == split), None)
+    if first is not None and str(load_record(data / first["path"])["source"]) != "procedural":
+        raise ValueError(f"{data}: degradation needs a procedural dataset (its meshes are regenerated)")
     tasks, seen = [], {}
     for row in manifest["records"]:
         if row["split"] != split:
@@ -74,8 +77,6 @@ def _tasks(data: Path, limit_per_category: int | None, split: str = "test") -> t
         seen[row["category"]] = seen.get(row["category"], 0) + 1
         if limit_per_category is not None and seen[row["category"]] > limit_per_category:
             continue
-        if str(load_record(data / row["path"])["source"]) != "procedural":
-            raise ValueError(f"{data}: degradation needs a procedural dataset (its meshes are regenerated)")
         index = int(row["shape_id"].rsplit("_", 1)[1])
         tasks.append(ShapeTask("procedural", row["category"], row["shape_id"], split, index=index))
     if not tasks:
@@ -108,8 +109,9 @@ def degrade(runs: list[str], data: str, limit_per_category: int | None = None, r
                 continue
             frame = scan_frame(pts.astype(np.float64))
             seen = truth.to_cube(pts)
+            missing = missing_part(truth_pts, seen, gap)          # once per scan, for every row
             rows[s.name]["input"].append({**base, "chamfer_x1e3": chamfer_distance(truth_pts, seen) * 1e3,
-                                          "missing_x1e3": _x1e3(missing_distance(truth_pts, seen, seen, gap))})
+                                          "missing_x1e3": _missing_x1e3(missing, seen)})
             cloud = validate(pts, nrm)
             for run, m in zip(runs, models):
                 tree = scan_octree(cloud, m.config.depth, adaptive=m.model.arch.octree == "adaptive")
@@ -118,9 +120,8 @@ def degrade(runs: list[str], data: str, limit_per_category: int | None = None, r
                 out, _ = decoded_points(m.model, latent, None, resolution, 0)[0]
                 out = truth.to_cube(frame.to_world(out)) if len(out) else out
                 rows[s.name][run].append({**base, **(
-                    {"chamfer_x1e3": chamfer_distance(truth_pts, out) * 1e3,
-                     "missing_x1e3": _x1e3(missing_distance(truth_pts, seen, out, gap))} if len(out) else
-                    {"chamfer_x1e3": None, "missing_x1e3": None})})
+                    {"chamfer_x1e3": chamfer_distance(truth_pts, out) * 1e3, "missing_x1e3": _missing_x1e3(missing, out)}
+                    if len(out) else {"chamfer_x1e3": None, "missing_x1e3": None})})
     table = {}
     for s in SETTINGS:
         entry = {"settings": asdict(s), "rows": {}}
@@ -139,8 +140,9 @@ def degrade(runs: list[str], data: str, limit_per_category: int | None = None, r
             "settings": table, "seconds": time.perf_counter() - t}
 
 
-def _x1e3(value: float | None) -> float | None:
-    return None if value is None else value * 1e3
+def _missing_x1e3(missing: np.ndarray, points: np.ndarray) -> float | None:
+    """The missing part's mean squared distance to ``points`` x1e3 (None when nothing is missing)."""
+    return mean_squared_distance(missing, points) * 1e3 if len(missing) else None
 
 
 def _category_mean(rows: list[dict], metric: str) -> float | None:

@@ -40,7 +40,7 @@ from .files import json_text, write_atomic
 from .networks import AtlasNetDecoder, OctreeDecoder, PointSetDecoder, TorchSteps
 from .nn.tensors import OctreeTensors
 from .octree import LEAF, Octree
-from .octree.metrics import chamfer_distance, missing_distance, sample_patches
+from .octree.metrics import chamfer_distance, mean_squared_distance, missing_part, sample_patches
 from .octree.patches import patches_to_mesh
 from .octree.batch import split_octree
 from .train.loop import TrainConfig
@@ -130,12 +130,11 @@ MISSING_GAP_VOXELS = 2
 
 def _missing(sample, pts: np.ndarray, depth: int) -> dict:
     """Completion rows: the missing part's distance to the output and to the input itself."""
-    gap = MISSING_GAP_VOXELS / (1 << depth)
-    inp = missing_distance(sample.points, sample.partial, sample.partial, gap)
-    if inp is None:
+    part = missing_part(sample.points, sample.partial, MISSING_GAP_VOXELS / (1 << depth))
+    if not len(part):
         return {"missing_x1e3": None, "input_missing_x1e3": None}
-    out = missing_distance(sample.points, sample.partial, pts, gap) if len(pts) else None
-    return {"missing_x1e3": None if out is None else out * 1e3, "input_missing_x1e3": inp * 1e3}
+    return {"missing_x1e3": mean_squared_distance(part, pts) * 1e3 if len(pts) else None,
+            "input_missing_x1e3": mean_squared_distance(part, sample.partial) * 1e3}
 
 
 def _mean_or_none(values: list[float]) -> float | None:
@@ -152,6 +151,8 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         raise ValueError(f"--oracle must be one of {', '.join(ORACLES)}")
     model, cfg = load_run(run)
     cfg = dataclasses.replace(cfg, data=data)          # the dataset to evaluate on (not the training one)
+    if cfg.task == "classify":
+        return evaluate_classifier(model, cfg, run, split, limit)
     octree_decoder = isinstance(model.decoder, OctreeDecoder)
     if oracle != "none" and not octree_decoder:
         raise ValueError("--oracle needs an octree decoder")
@@ -243,14 +244,13 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     return results
 
 
-def evaluate_classifier(run: str, data: str, split: str = "test", limit: int | None = None,
+def evaluate_classifier(model, cfg: TrainConfig, run: str, split: str = "test", limit: int | None = None,
                         batch_size: int = 16) -> dict:
-    """Accuracy of a classifier run: on each shape as built (rotation 0) and voted over the 12
-    rotations about the up axis (mean of the softmax), per category, with the confusion matrix."""
-    from .train.classify import ROTATIONS
+    """Accuracy of a classifier (loaded by :func:`evaluate`): on each shape as built (rotation 0)
+    and voted over the 12 rotations about the up axis (mean of the softmax), per category, with
+    the confusion matrix."""
+    from .octree.geometry import ROTATIONS
 
-    model, cfg = load_run(run)
-    cfg = dataclasses.replace(cfg, data=data)
     task = TASKS[cfg.task]
     records = task.dataset(cfg, split, 0, limit=limit)
     t = time.perf_counter()
@@ -322,12 +322,8 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--out {args.out}: the folder {folder} does not exist")
         if args.resolution < 2 or args.limit is not None and args.limit < 1:
             raise ValueError("--resolution must be at least 2 and --limit at least 1")
-        if load_model(args.run).config.task == "classify":
-            results = evaluate_classifier(args.run, args.data, args.split, args.limit)
-        else:
-            results = evaluate(args.run, args.data, args.split, args.resolution, args.limit, args.mesh_dir,
-                               oracle=args.oracle, align=args.icp, bundle=args.bundle,
-                               normals=args.normals)
+        results = evaluate(args.run, args.data, args.split, args.resolution, args.limit, args.mesh_dir,
+                           oracle=args.oracle, align=args.icp, bundle=args.bundle, normals=args.normals)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

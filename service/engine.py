@@ -21,7 +21,7 @@ from export.bundle import Bundle, BundleError, load_bundle
 from export.runtime import Runtime, available_cpus
 from model.decode import DECODED_NORMALIZATION
 from model.octree import PointCloud, build_octree, scan_octree
-from model.octree.geometry import axis_rotation
+from model.octree.geometry import up_rotations
 from model.octree.batch import merge_octrees, split_octree
 
 from .batching import Batcher
@@ -32,7 +32,6 @@ from .metrics import Metrics, StageTimer
 from .settings import Settings
 
 log = logging.getLogger("service")
-VOTE_ROTATIONS = 12
 
 
 class StartupError(RuntimeError):
@@ -258,15 +257,14 @@ class Engine:
         with timer("decode_input"):
             loaded = shape_input(data, filename, o.depth, self.settings.max_points, self.settings.max_npz_bytes,
                                  "shape")
-        angles = np.arange(VOTE_ROTATIONS if vote else 1) * (2 * np.pi / VOTE_ROTATIONS)
-        up = b.input.get("points", {}).get("up", "y")
+        rotations = up_rotations(b.input.get("points", {}).get("up", "y"))[:None if vote else 1]
         with timer("octree_build"):
             c = loaded.cloud
             trees = [build_octree(PointCloud(c.points @ r.T, c.normals @ r.T), o.depth, adaptive=o.adaptive,
                                   full_depth=o.full_depth, adaptive_depth=o.adaptive_depth,
                                   sample_spacing=loaded.sample_spacing,
                                   **({"threshold": o.threshold} if o.threshold else {}))
-                     for r in (axis_rotation(a, up) for a in angles)]
+                     for r in rotations]
         with timer("encoder"):
             probs = served.runtime.classify(served.runtime.encode_octree(merge_octrees(trees))).mean(0)
         order = np.argsort(-probs, kind="stable")[:top_k]

@@ -5,17 +5,19 @@ from __future__ import annotations
 import numpy as np
 
 from . import keys as morton
+from .neighbors import build_neighbors
 from .octree import Octree, OctreeLevel
 
 _MORTON_MASK = np.uint64((1 << morton.BATCH_SHIFT) - 1)
 
 
-def merge_octrees(octrees: list[Octree]) -> Octree:
+def merge_octrees(octrees: list[Octree], neighbors: bool = False) -> Octree:
     """One octree holding ``octrees`` as batch items 0..B-1 (in the given order).
 
     Keys get the batch index in their high bits; parent, child and neighbour indices are offset
     so that every table equals the per-shape table plus the node count of earlier shapes.
-    Neighbour tables are merged when every input has them.
+    Neighbour tables are merged when every input has them; otherwise ``neighbors`` builds the
+    merged octree's tables (once for the batch, not per shape).
     """
     if not octrees:
         raise ValueError("merge_octrees needs at least one octree")
@@ -50,10 +52,13 @@ def merge_octrees(octrees: list[Octree]) -> Octree:
             error=np.concatenate([p.error for p in parts]),
             npoints=np.concatenate([p.npoints for p in parts]),
             neighbors=None if neigh is None else neigh.astype(np.int32)))
-    return Octree(depth=first.depth, levels=levels, adaptive=all(o.adaptive for o in octrees),
-                  threshold=first.threshold, full_depth=first.full_depth,
-                  adaptive_depth=first.adaptive_depth,
-                  normalizations=[n for o in octrees for n in o.normalizations])
+    merged = Octree(depth=first.depth, levels=levels, adaptive=all(o.adaptive for o in octrees),
+                    threshold=first.threshold, full_depth=first.full_depth,
+                    adaptive_depth=first.adaptive_depth,
+                    normalizations=[n for o in octrees for n in o.normalizations])
+    if neighbors and not with_neigh:
+        build_neighbors(merged)
+    return merged
 
 
 def split_octree(octree: Octree, neighbors: bool = True) -> list[Octree]:

@@ -90,12 +90,13 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
     if not isinstance(cloud, PointCloud):
         cloud = validate(*cloud)
     norm = normalization_of(cloud.points) if normalization is None else normalization
+    cube, normals = norm.to_cube(cloud.points), cloud.normals
     if normalization is not None:
-        cloud = _inside(cloud, norm)
+        cube, normals = _inside(cube, normals)
     h_fine = 1.0 / (1 << depth)
 
     with timer("keys+sort"):
-        pts, nrm, key = _sorted_points(norm.to_cube(cloud.points), cloud.normals, depth)
+        pts, nrm, key = _sorted_points(cube, normals, depth)
     with timer("moments"):
         moments = _aggregate(pts, nrm, key, depth)
 
@@ -172,13 +173,12 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
     return octree
 
 
-def _inside(cloud: PointCloud, norm: Normalization) -> PointCloud:
-    """The points of ``cloud`` inside ``norm``'s unit cube (at least 3, or OctreeInputError)."""
-    cube = norm.to_cube(cloud.points)
+def _inside(cube: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The points (cube coordinates) and normals inside the unit cube (at least 3, or OctreeInputError)."""
     keep = ((cube >= 0) & (cube < 1)).all(1)
     if keep.sum() < 3:
         raise OctreeInputError(f"only {int(keep.sum())} of {len(cube)} points lie inside the given frame")
-    return cloud if keep.all() else PointCloud(cloud.points[keep], cloud.normals[keep])
+    return (cube, normals) if keep.all() else (cube[keep], normals[keep])
 
 
 def _sorted_points(cube: np.ndarray, normals: np.ndarray, depth: int):

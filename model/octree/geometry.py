@@ -250,6 +250,9 @@ def polygon_probes(normal: np.ndarray, offset: np.ndarray, verts: np.ndarray,
 
 
 AXES = ("x", "y", "z")
+ROTATIONS = 12
+"""Classification's rotations about the up axis (paper section 5.1): training draws one per
+step, the test-time vote averages over all of them."""
 
 
 def axis_rotation(angle: float, axis: str = "y") -> np.ndarray:
@@ -262,3 +265,8 @@ def axis_rotation(angle: float, axis: str = "y") -> np.ndarray:
     r = np.eye(3)
     r[i, i], r[i, j], r[j, i], r[j, j] = c, -s, s, c
     return r
+
+
+def up_rotations(up: str = "y", count: int = ROTATIONS) -> np.ndarray:
+    """(count, 3, 3): the rotations by k * 360/count degrees about ``up``, k = 0..count-1."""
+    return np.stack([axis_rotation(2 * np.pi * k / count, up) for k in range(count)])

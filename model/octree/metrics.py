@@ -79,10 +79,14 @@ def _random_in_polygons(verts: np.ndarray, count: np.ndarray, rng: np.random.Gen
 
 def chamfer_distance(ground_truth: np.ndarray, predicted: np.ndarray) -> float:
     """The paper's Chamfer distance: mean squared nearest distance, both directions, summed."""
-    g, p = _nonempty(ground_truth), _nonempty(predicted)
-    d_gp, _ = cKDTree(p).query(g, workers=-1)
-    d_pg, _ = cKDTree(g).query(p, workers=-1)
-    return float((d_gp ** 2).mean() + (d_pg ** 2).mean())
+    return mean_squared_distance(ground_truth, predicted) + mean_squared_distance(predicted, ground_truth)
+
+
+def mean_squared_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """One direction of the Chamfer distance: the mean squared distance from each point of ``a``
+    to its nearest point of ``b``."""
+    d, _ = cKDTree(_nonempty(b)).query(_nonempty(a), workers=-1)
+    return float((d ** 2).mean())
 
 
 def missing_distance(ground_truth: np.ndarray, observed: np.ndarray, predicted: np.ndarray,
@@ -90,12 +94,14 @@ def missing_distance(ground_truth: np.ndarray, observed: np.ndarray, predicted: 
     """Shape completion's own measure: the mean squared distance from the truth points farther
     than ``gap`` from every ``observed`` point (the missing part) to ``predicted``; None when
     nothing is missing.  A do-nothing prediction (the observed points) scores at least gap^2."""
+    part = missing_part(ground_truth, observed, gap)
+    return mean_squared_distance(part, predicted) if len(part) else None
+
+
+def missing_part(ground_truth: np.ndarray, observed: np.ndarray, gap: float) -> np.ndarray:
+    """The truth points farther than ``gap`` from every ``observed`` point (possibly none)."""
     g = _nonempty(ground_truth)
-    far = cKDTree(_nonempty(observed)).query(g, workers=-1)[0] > gap
-    if not far.any():
-        return None
-    d, _ = cKDTree(_nonempty(predicted)).query(g[far], workers=-1)
-    return float((d ** 2).mean())
+    return g[cKDTree(_nonempty(observed)).query(g, workers=-1)[0] > gap]
 
 
 def hausdorff_distance(a: np.ndarray, b: np.ndarray) -> float:

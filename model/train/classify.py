@@ -14,22 +14,20 @@ from pathlib import Path
 import numpy as np
 
 from ..octree import Octree, build_octree, validate
-from ..octree.geometry import AXES, axis_rotation
+from ..octree.geometry import AXES, ROTATIONS, up_rotations
 from ..octree.batch import merge_octrees
 from ..octree.serialize import octree_from_arrays, octree_to_arrays
 from .cache import cache_dir, load_derived
 from .data import Sample, manifest_rows
 
 CACHE_VERSION = 1
-ROTATIONS = 12
 UP_AXES = AXES
 
 
 def rotated_octrees(record, depth: int, kind: str, up: str, rotations: int = ROTATIONS) -> dict[str, np.ndarray]:
     """The octrees of a record's complete scan at ``rotations`` angles about ``up`` (cache content)."""
     out = {}
-    for k in range(rotations):
-        r = axis_rotation(2 * np.pi * k / rotations, up)
+    for k, r in enumerate(up_rotations(up, rotations)):
         cloud = validate(record["points"] @ r.T, record["normals"] @ r.T)
         out.update(octree_to_arrays(build_octree(cloud, depth, adaptive=kind == "adaptive", neighbors=False),
                                     prefix=f"r{k}_"))
@@ -68,9 +66,6 @@ class ClassifySet:
     def batch(self, indices, rotation: int | np.ndarray = 0) -> tuple[Octree, np.ndarray]:
         """The merged octree (with neighbour tables) of ``indices`` at ``rotation`` (one index, or
         one per shape) and their labels."""
-        from ..octree.neighbors import build_neighbors
-
         rot = np.broadcast_to(np.asarray(rotation), (len(indices),))
-        merged = merge_octrees([self.rotations[i][int(k)] for i, k in zip(indices, rot)])
-        build_neighbors(merged)
+        merged = merge_octrees([self.rotations[i][int(k)] for i, k in zip(indices, rot)], neighbors=True)
         return merged, self.labels[np.asarray(indices)]

@@ -100,8 +100,6 @@ class CompletionSet:
     def pairs(self, indices, rng: np.random.Generator | None = None) -> tuple[Octree, Octree]:
         """Merged (input, target) octrees with neighbour tables.  With ``rng``, each shape's scan
         and normals mode are drawn at random (training); without, the evaluation view."""
-        from ..octree.neighbors import build_neighbors
-
         inputs, targets = [], []
         for i in indices:
             options = self.variants[i]
@@ -111,10 +109,7 @@ class CompletionSet:
                 v, mode = options[int(rng.integers(len(options)))], NORMALS[int(rng.integers(len(NORMALS)))]
             inputs.append(v.inputs[mode])
             targets.append(v.target)
-        merged = merge_octrees(inputs), merge_octrees(targets)
-        for tree in merged:
-            build_neighbors(tree)
-        return merged
+        return merge_octrees(inputs, neighbors=True), merge_octrees(targets, neighbors=True)
 
     def batch(self, indices) -> tuple[Octree, np.ndarray]:
         """The merged target octree of the evaluation view and the truth points (B, P, 3)."""

@@ -80,9 +80,5 @@ class RecordSet:
 
     def batch(self, indices) -> tuple[Octree, np.ndarray]:
         """The merged octree (with neighbour tables) and stacked points (B, P, 3) of ``indices``."""
-        from ..octree.neighbors import build_neighbors
-
         chosen = [self.samples[i] for i in indices]
-        merged = merge_octrees([s.octree for s in chosen])
-        build_neighbors(merged)
-        return merged, np.stack([s.points for s in chosen])
+        return merge_octrees([s.octree for s in chosen], neighbors=True), np.stack([s.points for s in chosen])

@@ -49,7 +49,14 @@ def _check_structure(cfg: TrainConfig) -> None:
         raise ValueError(f"--structure-loss must be one of {', '.join(STRUCTURE_LOSSES)}")
 
 
-class AutoencoderTask:
+class OctreeInputTask:
+    """A task whose model's first input is an octree and whose encoder reads it."""
+
+    def encode(self, model, cfg, dataset, indices):
+        return model.encoder(self.inputs(cfg, dataset, indices, None)[0])
+
+
+class AutoencoderTask(OctreeInputTask):
     """Paper section 5.2: an octree in, the same shape out (``cfg.arch`` of :data:`ARCHS`)."""
 
     name = "autoencoder"
@@ -71,9 +78,6 @@ class AutoencoderTask:
     def inputs(self, cfg, dataset, indices, rng):
         octree, points = dataset.batch(indices)
         return OctreeTensors.from_octree(octree), torch.from_numpy(points)
-
-    def encode(self, model, cfg, dataset, indices):
-        return model.encoder(self.inputs(cfg, dataset, indices, None)[0])
 
 
 class ImageTask:
@@ -149,9 +153,10 @@ COMPLETION_ARCHS = ("aocnn", "ocnn-patch", "ocnn-patch-star", "ocnn-binary")
 """Completion networks: the Adaptive O-CNN encoder-decoder and the O-CNN full-octree baselines."""
 
 
-class CompletionTask:
+class CompletionTask(AutoencoderTask):
     """Paper section 5.2, shape completion: a partial scan's octree in, the complete shape's out,
-    both in the scan's frame (``cfg.arch`` of :data:`COMPLETION_ARCHS`, trained end to end)."""
+    both in the scan's frame (``cfg.arch`` of :data:`COMPLETION_ARCHS`, trained end to end; the
+    autoencoders' networks)."""
 
     name = "completion"
 
@@ -166,18 +171,12 @@ class CompletionTask:
                              limit=limit, seed=seed, categories=cfg.categories, normals=normals,
                              workers=cfg.workers)
 
-    def build_model(self, cfg):
-        return AutoencoderTask.build_model(self, cfg)
-
     def inputs(self, cfg, dataset, indices, rng):
         source, target = dataset.pairs(indices, rng)
         return OctreeTensors.from_octree(source), None, OctreeTensors.from_octree(target)
 
-    def encode(self, model, cfg, dataset, indices):
-        return model.encoder(self.inputs(cfg, dataset, indices, None)[0])
 
-
-class ClassifyTask:
+class ClassifyTask(OctreeInputTask):
     """Paper section 5.1: an octree in, its category out (``cfg.arch``: aocnn or ocnn), trained
     with each shape at 12 rotations about the up axis (one drawn per step)."""
 
@@ -205,13 +204,10 @@ class ClassifyTask:
         return Classifier(cfg.arch, cfg.depth, len(cfg.categories), latent=cfg.latent, base_channels=cfg.channels)
 
     def inputs(self, cfg, dataset, indices, rng):
-        from .classify import ROTATIONS
+        from ..octree.geometry import ROTATIONS
         rotation = 0 if rng is None else rng.integers(ROTATIONS, size=len(indices))
         octree, labels = dataset.batch(indices, rotation)
         return OctreeTensors.from_octree(octree), torch.from_numpy(labels)
-
-    def encode(self, model, cfg, dataset, indices):
-        return model.encoder(self.inputs(cfg, dataset, indices, None)[0])
 
 
 @functools.lru_cache(maxsize=4)
