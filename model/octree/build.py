@@ -17,16 +17,15 @@ from scipy.spatial import cKDTree
 
 from . import keys as morton
 from .errors import OctreeInputError
-from .geometry import cube_polygons, fit_planes, polygon_distance, polygon_probes
+from .geometry import fit_planes
 from .neighbors import build_neighbors
 from .octree import EMPTY, LEAF, PLANE_SCALE, SPLIT, Normalization, Octree, OctreeLevel
+from .patch_error import PatchErrorSettings, _ranges, patch_errors
 from .pointcloud import PointCloud, normalization_of, validate
 
 DEFAULT_THRESHOLD = float(np.sqrt(3.0) / 2.0)
 """The paper's split threshold, in finest voxels: sqrt(3)/2 * h."""
 MAX_BUILD_DEPTH = 12
-_SEPARATION = 4.0
-"""Offset between octants in the per-depth k-d tree: larger than any distance inside the cube."""
 
 
 @dataclass
@@ -39,15 +38,6 @@ class _Moments:
     start: np.ndarray        # (M,) first point (in sorted order)
     first_child: np.ndarray | None = None  # (M,) first non-empty child at depth+1
     n_children: np.ndarray | None = None   # (M,) number of non-empty children
-
-
-@dataclass
-class PatchErrorSettings:
-    """How the patch error is measured (all lengths in cube units)."""
-
-    threshold: float         # delta hat
-    gap: float               # sampling-gap tolerance, removed in quadrature from patch->surface
-    probe_spacing: float     # spacing of the probe grid laid on each patch
 
 
 class _Timer:
@@ -69,7 +59,7 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
                  full_depth: int = 2, adaptive_depth: int = 4,
                  neighbors: bool = True, measure_leaves: bool = False,
                  sample_spacing: float | None = None, normalization: Normalization | None = None,
-                 timings: dict | None = None) -> Octree:
+                 certify: bool = True, timings: dict | None = None) -> Octree:
     """Build the octree of one oriented point cloud.
 
     ``threshold`` is delta hat in finest voxels (paper: sqrt(3)/2).  ``adaptive=False`` gives
@@ -77,8 +67,10 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
     (including those at the max depth), for statistics.  ``sample_spacing`` is the spacing of
     the input samples in input units (estimated when omitted); sampling gaps up to it are not
     counted as patch error.  ``normalization`` fixes the cube frame (default: the points' own
-    bounding box, :func:`normalization_of`); points outside that cube are dropped.  ``timings``
-    receives seconds per build stage.
+    bounding box, :func:`normalization_of`); points outside that cube are dropped.
+    ``certify=False`` answers every patch->surface probe with the k-d tree instead of first
+    settling what the finest voxels' occupancy proves (same result, slower: the reference the
+    tests compare against).  ``timings`` receives seconds per build stage.
     """
     timer = _Timer(timings)
     if not isinstance(depth, (int, np.integer)) or not 1 <= depth <= MAX_BUILD_DEPTH:
@@ -104,7 +96,7 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
     if adaptive or measure_leaves:
         with timer("spacing"):
             spacing = (sample_spacing / norm.scale if sample_spacing is not None
-                       else _estimate_spacing(pts))
+                       else _estimate_spacing(pts.T))
         settings = PatchErrorSettings(threshold=threshold * h_fine, gap=spacing,
                                       probe_spacing=h_fine)
 
@@ -138,8 +130,9 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
         elif lv < adaptive_depth or not adaptive:
             split = nonempty.copy()
         else:
-            err = _patch_errors(pts, nrm, settings, centre, normal, offset, size,
-                                mom.start[ne], mom.count[ne], exact=False, timer=timer)
+            err = patch_errors(pts, nrm, settings, centre, normal, offset, size,
+                               mom.start[ne], mom.count[ne], exact=False,
+                               certify=certify, timer=timer)
             error[nonempty] = err
             split = nonempty.copy()
             split[nonempty] = err > settings.threshold
@@ -149,9 +142,10 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
             # Leaves not measured to decide a split (full trees, the max depth) are measured here.
             sel = np.flatnonzero(np.isnan(error[nonempty]) & (label[nonempty] == LEAF))
             if len(sel):
-                error[np.flatnonzero(nonempty)[sel]] = _patch_errors(
+                error[np.flatnonzero(nonempty)[sel]] = patch_errors(
                     pts, nrm, settings, centre[sel], normal[sel], offset[sel], size,
-                    mom.start[ne[sel]], mom.count[ne[sel]], exact=True, timer=timer)
+                    mom.start[ne[sel]], mom.count[ne[sel]], exact=True,
+                    certify=certify, timer=timer)
 
         with timer("structure"):
             child = np.full(n, -1, dtype=np.int32)
@@ -182,41 +176,70 @@ def _inside(cube: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 def _sorted_points(cube: np.ndarray, normals: np.ndarray, depth: int):
-    """Points, normals and finest keys sorted by key."""
+    """Points and normals as rows (3, N), and finest keys, sorted by key."""
     res = 1 << depth
     ijk = np.clip((cube * res).astype(np.int64), 0, res - 1)
     key = morton.encode(ijk)
     order = np.argsort(key)              # the order of points inside one voxel does not matter
-    return cube[order], normals[order], key[order]
+    return np.take(cube.T, order, axis=1), np.take(normals.T, order, axis=1), key[order]
 
 
 def _aggregate(pts: np.ndarray, nrm: np.ndarray, key: np.ndarray, depth: int) -> list[_Moments]:
-    """Point moments of every non-empty octant at every depth, finest first, then upward.
+    """Point moments (from rows (3, N)) of every non-empty octant at every depth, finest first.
 
     Sums are taken segment by segment (not as differences of prefix sums), so a one-point
     octant has exactly zero spread at any depth.
     """
     # Rows x y z, xx xy xz yy yz zz, nx ny nz of every point (coordinates - 0.5 for precision).
-    cols = np.empty((12, len(pts)))
-    np.subtract(pts.T, 0.5, out=cols[:3])
+    cols = np.empty((12, pts.shape[1]))
+    np.subtract(pts, 0.5, out=cols[:3])
     x, y, z = cols[0], cols[1], cols[2]
     for row, (a, b) in enumerate(((x, x), (x, y), (x, z), (y, y), (y, z), (z, z)), start=3):
         np.multiply(a, b, out=cols[row])
-    cols[9:] = nrm.T
-    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    cols[9:] = nrm
+    new = np.r_[True, key[1:] != key[:-1]]
+    starts = np.flatnonzero(new)
     count = np.diff(np.r_[starts, len(key)])
     levels: list[_Moments | None] = [None] * (depth + 1)
     levels[depth] = _Moments(key=key[starts], count=count,
-                             sums=np.add.reduceat(cols, starts, axis=1), start=starts)
+                             sums=_segment_sums(cols, new, len(starts)), start=starts)
     for lv in range(depth - 1, -1, -1):
         fine = levels[lv + 1]
         pk = fine.key >> np.uint64(3)
-        first = np.flatnonzero(np.r_[True, pk[1:] != pk[:-1]])
+        new = np.r_[True, pk[1:] != pk[:-1]]
+        first = np.flatnonzero(new)
         levels[lv] = _Moments(key=pk[first], count=np.add.reduceat(fine.count, first),
-                              sums=np.add.reduceat(fine.sums, first, axis=1),
+                              sums=_segment_sums(fine.sums, new, len(first)),
                               start=fine.start[first], first_child=first,
                               n_children=np.diff(np.r_[first, len(pk)]))
     return levels
+
+
+def _segment_sums(rows: np.ndarray, new: np.ndarray, n: int) -> np.ndarray:
+    """Sums (R, n) of each row over consecutive segments (``new`` marks each segment's start),
+    equal bit for bit to ``np.add.reduceat(rows, starts, axis=1)`` and faster on short segments.
+
+    reduceat adds a segment as ``x0 + (((0 + x1) + x2) + ...)`` when it has at most 8 elements
+    (longer ones are summed pairwise); ``bincount`` adds in order from 0, so the heads plus the
+    bincount of the tails give the same numbers.  Segments over 8 elements use reduceat itself.
+    The equality keeps planes, and with them every label and patch error, unchanged by this
+    speed-up: the patch error is not continuous in the plane where a polygon is degenerate.
+    """
+    starts = np.flatnonzero(new)
+    tail = np.flatnonzero(~new)
+    seg = np.cumsum(new) - 1
+    out = np.take(rows, starts, axis=1)
+    tails = np.take(rows, tail, axis=1)
+    st = seg[tail]
+    for r in range(len(rows)):
+        out[r] += np.bincount(st, weights=tails[r], minlength=n)
+    count = np.diff(np.r_[starts, rows.shape[1]])
+    long_ = np.flatnonzero(count > 8)
+    if len(long_):
+        idx = _ranges(starts[long_], count[long_])
+        out[:, long_] = np.add.reduceat(np.take(rows, idx, axis=1),
+                                        np.cumsum(count[long_]) - count[long_], axis=1)
+    return out
 
 
 def _children(node_key, node_ne, split_idx, mom: _Moments, fine: _Moments):
@@ -235,15 +258,6 @@ def _children(node_key, node_ne, split_idx, mom: _Moments, fine: _Moments):
     return child_key, child_ne
 
 
-def _ranges(start: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """Concatenation of ``arange(s, s + c)`` for all pairs, without a Python loop."""
-    total = int(count.sum())
-    if total == 0:
-        return np.zeros(0, dtype=np.int64)
-    offs = np.cumsum(count) - count
-    return np.repeat(start - offs, count) + np.arange(total)
-
-
 def _estimate_spacing(pts: np.ndarray, thin_to: int = 25_000) -> float:
     """Typical sample spacing 1/sqrt(density), from nearest neighbours in a random thinning.
 
@@ -259,76 +273,3 @@ def _estimate_spacing(pts: np.ndarray, thin_to: int = 25_000) -> float:
     d, _ = tree.query(sub[:: max(1, len(sub) // 4000)], k=2)
     d = d[:, 1][d[:, 1] > 0]
     return float(2.0 * d.mean() * np.sqrt(f)) if len(d) else 0.0
-
-
-def _patch_errors(pts, nrm, cfg: PatchErrorSettings, centre, normal, offset,
-                  size: float, start, count, *, exact: bool, timer: _Timer) -> np.ndarray:
-    """Hausdorff distance between each octant's planar patch and its points (paper's delta_O).
-
-    surface->patch: exact point-to-polygon distance of every point of the octant, plus the gap
-    times the sine of the angle between the point's normal and the patch normal.
-    patch->surface: distance d from probes on the patch (its boundary and a grid) to the nearest
-    point of the same octant, as sqrt(d^2 - tol^2) with tol the likely largest sampling gap
-    among the octant's probes, so that sampling gaps alone read as zero.  With ``exact=False``
-    octants over the threshold by the first direction skip the second (they split anyway), and
-    probes farther than hypot(threshold, tol) read infinite.
-    """
-    m = len(normal)
-    with timer("error surface->patch"):
-        verts, nvert = cube_polygons(normal, offset, size)
-        idx = _ranges(start, count)
-        owner = np.repeat(np.arange(m), count)
-        local = pts[idx] - centre[owner]
-        n_o = normal[owner]
-        s = (local * n_o).sum(1) + offset[owner]
-        dist = np.abs(s)
-        proj = local - s[:, None] * n_o
-        outside = (np.abs(proj) > size * (0.5 + 1e-9)).any(1)
-        if outside.any():
-            o = np.flatnonzero(outside)
-            dist[o] = polygon_distance(local[o], n_o[o], offset[owner[o]], verts[owner[o]])
-        # Each sample stands for the surface within the sampling gap around it: extrapolate its
-        # distance along its own tangent plane, which leaves the patch at angle theta.
-        cos = (nrm[idx] * n_o).sum(1)
-        dist += cfg.gap * np.sqrt(np.maximum(1.0 - cos * cos, 0.0))
-        err = np.maximum.reduceat(dist, np.cumsum(count) - count)
-    with timer("error patch->surface"):
-        todo = np.arange(m) if exact else np.flatnonzero(err <= cfg.threshold)
-        if len(todo) == 0:
-            return err
-        spacing = max(cfg.probe_spacing, size / 32.0)
-        probes, pid, edge_dist = polygon_probes(normal[todo], offset[todo], verts[todo],
-                                                nvert[todo], size, spacing)
-        oct_id = todo[pid]
-        first = np.flatnonzero(np.r_[True, oct_id[1:] != oct_id[:-1]])
-        n_probes = np.diff(np.r_[first, len(oct_id)])
-        # Random samples leave gaps: among K probes over true surface the farthest sees its
-        # nearest sample about spacing * sqrt(ln K / pi) away (Poisson statistics); the gap
-        # tolerance is that distance at its 99% quantile for each octant's probe count.
-        tol = np.repeat(cfg.gap * np.sqrt(np.log(100.0 * n_probes) / np.pi), n_probes)
-        # Near the cube's boundary a probe sees samples on one side only: half the density, so
-        # gaps sqrt(2) times wider.  The factor fades in over one tolerance from the boundary.
-        tol *= np.sqrt(2.0) - (np.sqrt(2.0) - 1.0) * np.clip(edge_dist / tol, 0.0, 1.0)
-        bound = np.inf if exact else float(np.hypot(cfg.threshold, tol.max()))
-        d = _nearest_in_octant(pts, idx, owner, probes + centre[oct_id], oct_id, bound)
-        # Removing the tolerance in quadrature forgives gaps without hiding real overhangs.
-        ps = np.sqrt(np.maximum(d * d - tol * tol, 0.0))
-        err[oct_id[first]] = np.maximum(err[oct_id[first]], np.maximum.reduceat(ps, first))
-    return err
-
-
-def _nearest_in_octant(pts, idx, owner, query, oct_id, bound: float) -> np.ndarray:
-    """Distance from each query to the nearest point of its own octant (``owner`` of ``idx``).
-
-    Every involved octant is moved to its own place along x (octant i by i * _SEPARATION), so
-    one k-d tree answers all of them and no query can reach another octant's points.
-    """
-    wanted = np.zeros(int(owner.max()) + 1 if len(owner) else 0, dtype=bool)
-    wanted[oct_id] = True
-    keep = wanted[owner]
-    moved = pts[idx[keep]]
-    moved[:, 0] += owner[keep] * _SEPARATION
-    q = query.copy()
-    q[:, 0] += oct_id * _SEPARATION
-    tree = cKDTree(moved, leafsize=16, balanced_tree=False, compact_nodes=False)
-    return tree.query(q, k=1, distance_upper_bound=bound, workers=-1)[0]

@@ -7,6 +7,8 @@ octant's cube is ``[-h/2, h/2]^3`` around its centre and a plane is ``n . y + d 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 MAX_POLYGON = 6
@@ -75,7 +77,9 @@ def fit_planes(count: np.ndarray, s1: np.ndarray, s2: np.ndarray, nsum: np.ndarr
     the average input normal made orthogonal to the points' line.
     """
     m = s1 / count
-    cov = s2 / count - m[[0, 0, 0, 1, 1, 2]] * m[[0, 1, 2, 1, 2, 2]]
+    cov = s2 / count
+    for r, (i, j) in enumerate(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
+        cov[r] -= m[i] * m[j]
     normal = np.empty((len(count), 3))
     degenerate = count < 3
     full = np.flatnonzero(~degenerate)
@@ -88,8 +92,17 @@ def fit_planes(count: np.ndarray, s1: np.ndarray, s2: np.ndarray, nsum: np.ndarr
         normal[full] = eigenvector(c, _rayleigh(c, v))
         # Spread along the second axis below ~0.03% of the first: a line (or a point), no plane.
         degenerate[full] = (vals[1] <= 1e-7 * vals[0]) | (vals[0] <= 0)
-    if degenerate.any():
-        normal[degenerate] = _line_normals(cov[:, degenerate], nsum[:, degenerate])
+    # One point has no spread: its normal is its own (what _line_normals gives, without the work).
+    single = np.flatnonzero(count == 1)
+    a = nsum[:, single]
+    a = a / np.maximum(np.sqrt((a * a).sum(0)), 1e-300)
+    an = np.sqrt((a * a).sum(0))
+    ok = an > 1e-12
+    normal[single[ok]] = (a[:, ok] / an[ok]).T
+    rest = degenerate.copy()
+    rest[single[ok]] = False
+    if rest.any():
+        normal[rest] = _line_normals(cov[:, rest], nsum[:, rest])
     flip = np.einsum("mj,jm->m", normal, nsum) < 0
     normal[flip] *= -1.0
     return normal, np.ascontiguousarray(m.T), degenerate
@@ -151,29 +164,39 @@ def cube_polygons(normal: np.ndarray, offset: np.ndarray, size: np.ndarray | flo
     last vertex) and the vertex counts (M,); a count of 0 means the plane misses the cube.
     """
     size = np.broadcast_to(np.asarray(size, dtype=np.float64), offset.shape)
-    s3 = size[:, None, None]
+    m = len(offset)
     f = (_CORNERS @ normal.T).T * size[:, None] + offset[:, None]     # (M, 8)
     tol = 1e-12 * size[:, None]
     on = np.abs(f) <= tol
     fa, fb = f[:, _EDGES[:, 0]], f[:, _EDGES[:, 1]]
     cross = ((fa > tol) & (fb < -tol)) | ((fa < -tol) & (fb > tol))
     t = fa / np.where(cross, fa - fb, 1.0)
-    # corners and edge crossings of the unit cube, scaled: (M, 20, 3)
-    cand = np.concatenate([np.broadcast_to(_CORNERS, (len(f), 8, 3)),
-                           _EDGE_START + t[..., None] * _EDGE_DIR], axis=1) * s3
-    valid = np.concatenate([on, cross], axis=1)
+    valid = np.concatenate([on, cross], axis=1)                       # (M, 20)
     count = valid.sum(1)
     u, v = plane_basis(normal)
-    centre = np.einsum("mk,mkj->mj", valid.astype(np.float64), cand) / np.maximum(count, 1)[:, None]
-    rel = cand - centre[:, None]
-    ang = np.arctan2(np.einsum("mkj,mj->mk", rel, v), np.einsum("mkj,mj->mk", rel, u))
-    order = np.argsort(np.where(valid, ang, np.inf), axis=1)[:, :MAX_POLYGON]
-    verts = np.take_along_axis(cand, order[..., None], axis=1)
+    # Candidates per coordinate: the 8 corners, then the 12 edge crossings, scaled.
+    cand = []
+    for c in range(3):
+        cc = np.empty((m, 20))
+        cc[:, :8] = _CORNERS[:, c] * size[:, None]
+        cc[:, 8:] = (_EDGE_START[:, c] + t * _EDGE_DIR[:, c]) * size[:, None]
+        cand.append(cc)
+    # Order the vertices by their angle about their mean, in the plane's (u, v) frame.
+    weight = valid.astype(np.float64)
+    inv = 1.0 / np.maximum(count, 1)
+    au, av = np.zeros((m, 20)), np.zeros((m, 20))
+    for c in range(3):
+        rel = cand[c] - ((weight * cand[c]).sum(1) * inv)[:, None]
+        au += rel * u[:, c, None]
+        av += rel * v[:, c, None]
+    ang = np.arctan2(av, au)
+    ang[~valid] = np.inf
+    order = np.argsort(ang, axis=1)[:, :MAX_POLYGON]
     count = np.minimum(count, MAX_POLYGON)
-    last = np.take_along_axis(verts, np.maximum(count - 1, 0)[:, None, None].repeat(3, 2), axis=1)
-    pad = np.arange(MAX_POLYGON)[None] >= count[:, None]
-    verts = np.where(pad[..., None], last, verts)
-    return verts, count
+    last = np.take_along_axis(order, np.maximum(count - 1, 0)[:, None], axis=1)
+    order = np.where(np.arange(MAX_POLYGON)[None] >= count[:, None], last, order)
+    rows = np.arange(m)[:, None]
+    return np.stack([cand[c][rows, order] for c in range(3)], axis=2), count
 
 
 def polygon_distance(points: np.ndarray, normal: np.ndarray, offset: np.ndarray,
@@ -203,50 +226,124 @@ def _outside_distance_sq(q: np.ndarray, normal: np.ndarray, verts: np.ndarray) -
     return np.where(inside, 0.0, dist2)
 
 
-def polygon_probes(normal: np.ndarray, offset: np.ndarray, verts: np.ndarray,
-                   count: np.ndarray, size: float, spacing: float
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Points covering each polygon: its boundary and a square grid, both at ``spacing``.
+@dataclass
+class PatchProbes:
+    """Probes covering M planar patches of octants of one size: a square grid and the boundary.
 
-    All polygons lie in cubes of the same ``size``.  Every point of a polygon is within about
-    ``spacing / sqrt(2)`` of a probe.  Returns probe points (P, 3) in each octant's local frame,
-    the index (P,) of the polygon each belongs to (grouped by polygon), and each probe's
-    in-plane distance to the polygon's boundary (P,).
+    Grid probe (i, j) of patch m lies at ``foot[m] + g[i] u[m] + g[j] v[m]`` (in the octant's
+    local frame); the grid covers the disc around the octant, and ``grid`` lists the flat indices
+    ``(m * k + i) * k + j`` of the points inside the cube, ascending.  Each polygon edge carries
+    ``per_edge`` boundary probes ``a + (j / per_edge) (b - a)``, ``j = 0 .. per_edge - 1``.
+    Every point of a patch is within about ``spacing / sqrt(2)`` of a probe.  Coordinates are
+    made on demand, for the probes that need them.
     """
-    m = len(normal)
+
+    u: np.ndarray            # (M, 3) in-plane axes, u x v = n
+    v: np.ndarray
+    foot: np.ndarray         # (M, 3) foot of the plane from the octant centre
+    g: np.ndarray            # (k,) grid coordinates along u and v
+    grid: np.ndarray         # (G,) flat indices of the grid probes inside the cube
+    edge_a: np.ndarray       # (K, 3) edge start and end points
+    edge_b: np.ndarray
+    edge_poly: np.ndarray    # (K,) the patch of each edge
+    per_edge: int
+
+    @property
+    def k(self) -> int:
+        return len(self.g)
+
+    @property
+    def grid_patch(self) -> np.ndarray:
+        return self.grid // (self.k * self.k)
+
+    @property
+    def edge_patch(self) -> np.ndarray:
+        return np.repeat(self.edge_poly, self.per_edge)
+
+    def distinct_edge_probes(self) -> np.ndarray:
+        """Indices of the boundary probes without repeats: a polygon with fewer than 6 vertices
+        closes on a zero-length edge (its last vertex repeated as padding), whose probes all
+        lie on that vertex, so only the first of them is kept."""
+        same = np.all(self.edge_a == self.edge_b, axis=1)
+        keep = np.ones((len(same), self.per_edge), dtype=bool)
+        keep[same, 1:] = False
+        return np.flatnonzero(keep)
+
+    def grid_uv(self, sel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """In-plane coordinates (g_i, g_j) of the grid probes ``grid[sel]``."""
+        ij = self.grid[sel] % (self.k * self.k)
+        return self.g[ij // self.k], self.g[ij % self.k]
+
+    def grid_points(self, sel: np.ndarray) -> np.ndarray:
+        """Coordinates (3, len(sel)) of the grid probes ``grid[sel]``."""
+        m = self.grid[sel] // (self.k * self.k)
+        gi, gj = self.grid_uv(sel)
+        # (foot + g_i u) + g_j v, in this order (the rounding of the whole grid's layout)
+        return np.stack([self.foot[m, c] + gi * self.u[m, c] + gj * self.v[m, c] for c in range(3)])
+
+    def edge_uv(self, sel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """In-plane coordinates of the boundary probes ``sel``, and the unit direction into the
+        patch across each probe's edge (towards the patch's vertex mean on a zero-length edge)."""
+        t = np.arange(self.per_edge) / self.per_edge
+        ends, out = [], []
+        for axis in (self.u, self.v):
+            ax = axis[self.edge_poly]
+            wa = self.edge_a[:, 0] * ax[:, 0] + self.edge_a[:, 1] * ax[:, 1] + self.edge_a[:, 2] * ax[:, 2]
+            wb = self.edge_b[:, 0] * ax[:, 0] + self.edge_b[:, 1] * ax[:, 1] + self.edge_b[:, 2] * ax[:, 2]
+            ends.append((wa, wb))
+            out.append((wa[:, None] + t[None, :] * (wb - wa)[:, None]).ravel()[sel])
+        (ua, ub), (va, vb) = ends
+        # Polygons run counter-clockwise about n = u x v: the inside is left of each edge.
+        iu, iv = va - vb, ub - ua
+        n_edges = np.maximum(np.bincount(self.edge_poly), 1)
+        flat = (iu == 0) & (iv == 0)
+        iu = np.where(flat, (np.bincount(self.edge_poly, ua) / n_edges)[self.edge_poly] - ua, iu)
+        iv = np.where(flat, (np.bincount(self.edge_poly, va) / n_edges)[self.edge_poly] - va, iv)
+        length = np.maximum(np.hypot(iu, iv), 1e-300)
+        edge = sel // self.per_edge
+        return out[0], out[1], (iu / length)[edge], (iv / length)[edge]
+
+    def edge_points(self, sel: np.ndarray) -> np.ndarray:
+        """Coordinates (3, len(sel)) of the boundary probes ``sel`` (in edge-by-edge order)."""
+        edge, j = np.divmod(sel, self.per_edge)
+        t = j / self.per_edge
+        a, b = self.edge_a[edge], self.edge_b[edge]
+        return np.stack([a[:, c] + t * (b[:, c] - a[:, c]) for c in range(3)])
+
+
+def patch_probes(normal: np.ndarray, offset: np.ndarray, verts: np.ndarray, count: np.ndarray,
+                 size: float, spacing: float) -> PatchProbes:
+    """The probes of :class:`PatchProbes` for polygons (``cube_polygons``) in cubes of ``size``."""
     u, v = plane_basis(normal)
     radius = np.sqrt(3.0) / 2.0 * size
     k = int(np.ceil(2.0 * radius / spacing)) + 1
     g = np.linspace(-radius, radius, k)
-    gu, gv = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
     foot = -offset[:, None] * normal                                     # (M, 3)
-    # Boundary: E samples per edge (E fixed per call so the arrays stay rectangular).
-    e = int(np.ceil(np.sqrt(2.0) * size / spacing))
-    t = np.arange(e) / e
-    a, b = verts, np.roll(verts, -1, axis=1)
-    edge = a[:, :, None] + t[None, None, :, None] * (b - a)[:, :, None]  # (M, 6, E, 3)
-    valid_edge = np.arange(MAX_POLYGON)[None] < count[:, None]
-    out_pts, out_idx = [], []
-    chunk = max(1, 2_000_000 // max(k * k, 1))
     half = size / 2.0 * (1.0 + 1e-9)
-    for s in range(0, m, chunk):
-        sl = slice(s, min(m, s + chunk))
-        pts = foot[sl, None] + gu[None, :, None] * u[sl, None] + gv[None, :, None] * v[sl, None]
-        inside = (np.abs(pts) <= half).all(2)
-        mi, gi = np.nonzero(inside)
-        out_pts.append(pts[mi, gi])
-        out_idx.append(mi + s)
-    mi, ki = np.nonzero(valid_edge)
-    out_pts.append(edge[mi, ki].reshape(-1, 3))
-    out_idx.append(np.repeat(mi, e))
-    pts, idx = np.concatenate(out_pts), np.concatenate(out_idx)
-    order = np.argsort(idx, kind="stable")
-    pts, idx = pts[order], idx[order]
-    # The polygon's edges lie on the cube's faces: in the plane, face i is (h/2 - |y_i|) away
-    # divided by the sine of the angle between the plane and that face.
-    sine = np.sqrt(np.maximum(1.0 - normal[idx] ** 2, 1e-12))
-    edge_dist = np.maximum((size / 2.0 - np.abs(pts)) / sine, 0.0).min(1)
-    return pts, idx, edge_dist
+    # Per coordinate the grid is an outer sum of a row term and a column term.
+    inside = None
+    for c in range(3):
+        r = foot[:, c, None] + g[None, :] * u[:, c, None]                # (M, k)
+        q = g[None, :] * v[:, c, None]
+        ok = np.abs(r[:, :, None] + q[:, None, :]) <= half
+        inside = ok if inside is None else np.logical_and(inside, ok, out=inside)
+    em, ek = np.nonzero(np.arange(MAX_POLYGON)[None] < count[:, None])
+    return PatchProbes(u=u, v=v, foot=foot, g=g, grid=np.flatnonzero(inside),
+                       edge_a=verts[em, ek], edge_b=verts[em, (ek + 1) % MAX_POLYGON],
+                       edge_poly=em, per_edge=int(np.ceil(np.sqrt(2.0) * size / spacing)))
+
+
+def boundary_distance(points: np.ndarray, normal: np.ndarray, size: float) -> np.ndarray:
+    """In-plane distance (P,) from probes (rows (3, P), local frame) to their patch's boundary.
+
+    The polygon's edges lie on the cube's faces: in the plane, face i is (h/2 - |y_i|) away
+    divided by the sine of the angle between the plane and that face (``normal`` (P, 3)).
+    """
+    out = None
+    for c in range(3):
+        dc = (size / 2.0 - np.abs(points[c])) / np.sqrt(np.maximum(1.0 - normal[:, c] ** 2, 1e-12))
+        out = dc if out is None else np.minimum(out, dc, out=out)
+    return np.maximum(out, 0.0, out=out)
 
 
 AXES = ("x", "y", "z")

@@ -45,14 +45,14 @@ def child_neighbors(neighbors: np.ndarray, child: np.ndarray) -> np.ndarray:
 
     ``child`` (N,) holds k for the k-th split node (children 8k..8k+7) and -1 elsewhere.
     """
-    # First child of every node (8k), a large negative sentinel for nodes without children,
-    # and one more sentinel at index -1 so that a missing neighbour (-1) reads it too.
-    first = np.append(np.where(child >= 0, child * 8, _NONE).astype(np.int32), _NONE)
+    # First child of every node (8k) and -1 for nodes without children, plus one more -1 at
+    # index -1 so that a missing neighbour (-1) reads it too.  8k | slot = 8k + slot, and
+    # -1 | slot = -1: one OR gives the child's index or -1.
+    first = np.append(np.where(child >= 0, child * 8, -1).astype(np.int32), np.int32(-1))
     parent_neigh = np.take(neighbors, np.flatnonzero(child >= 0), axis=0)     # (K, 27)
     base = np.take(first, parent_neigh)                                        # (K, 27)
     out = np.take(base, _PARENT_COL, axis=1)                                    # (K, 216)
-    out += _SLOT32
-    np.maximum(out, -1, out=out)
+    out |= _SLOT32
     return out.reshape(-1, 27)
 
 
@@ -64,5 +64,4 @@ def build_neighbors(octree: Octree) -> None:
         levels[lv].neighbors = child_neighbors(levels[lv - 1].neighbors, levels[lv - 1].child)
 
 
-_NONE = np.int32(-(1 << 30))
 _SLOT32 = _SLOT.astype(np.int32)

@@ -1,0 +1,285 @@
+"""The patch error delta_O (paper section 3): Hausdorff distance between an octant's planar patch
+and the input points inside it, measured for all octants of one depth at once.
+
+surface->patch is exact per point.  patch->surface is measured at probes laid on each patch
+(:func:`model.octree.geometry.polygon_probes`); most probes are settled by the occupancy of the
+finest voxels (a sample in a voxel next to the probe proves the probe covered) and only the rest
+are answered by a k-d tree, which gives the same values as asking the k-d tree for every probe.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .geometry import PatchProbes, boundary_distance, cube_polygons, patch_probes, polygon_distance
+
+_SEPARATION = 4.0
+"""Offset between octants in the per-depth k-d tree: larger than any distance inside the cube."""
+
+
+@dataclass
+class PatchErrorSettings:
+    """How the patch error is measured (all lengths in cube units)."""
+
+    threshold: float         # delta hat
+    gap: float               # sampling-gap tolerance, removed in quadrature from patch->surface
+    probe_spacing: float     # spacing of the probe grid laid on each patch
+
+
+def patch_errors(pts: np.ndarray, nrm: np.ndarray, cfg: PatchErrorSettings, centre: np.ndarray,
+                 normal: np.ndarray, offset: np.ndarray, size: float, start: np.ndarray,
+                 count: np.ndarray, *, exact: bool, certify: bool = True, timer=None) -> np.ndarray:
+    """Hausdorff distance between each octant's planar patch and its points (paper's delta_O).
+
+    surface->patch: exact point-to-polygon distance of every point of the octant, plus the gap
+    times the sine of the angle between the point's normal and the patch normal.
+    patch->surface: distance d from probes on the patch (its boundary and a grid) to the nearest
+    point of the same octant, as sqrt(d^2 - tol^2) with tol the likely largest sampling gap
+    among the octant's probes, so that sampling gaps alone read as zero.  With ``exact=False``
+    octants over the threshold by the first direction skip the second (they split anyway), and
+    probes farther than hypot(threshold, tol) read infinite.  Points and normals are rows
+    (3, N) sorted so that octant i owns columns ``start[i] .. start[i] + count[i] - 1``.
+
+    With ``certify``, probes that the octant's points binned on the patch's probe grid prove
+    within tol of a point read zero without a k-d tree query; the k-d tree would read zero for
+    them too, so the values do not depend on it.
+    """
+    timer = timer or _no_timer
+    m = len(normal)
+    owner = np.repeat(np.arange(m), count)
+    with timer("patch polygons"):
+        verts, nvert = cube_polygons(normal, offset, size)
+    with timer("error surface->patch"):
+        idx = _ranges(start, count)
+        whole = len(idx) == pts.shape[1]          # every point, in order: no gather needed
+        nx, ny, nz, cx, cy, cz, off = (np.repeat(c, count) for c in (*normal.T, *centre.T, offset))
+        local = [(pts[c] if whole else pts[c][idx]) - cc for c, cc in enumerate((cx, cy, cz))]
+        s = local[0] * nx + local[1] * ny
+        s += local[2] * nz
+        s += off
+        dist = np.abs(s)
+        lim = size * (0.5 + 1e-9)
+        outside = np.zeros(len(s), dtype=bool)
+        for lc, nc in zip(local, (nx, ny, nz)):
+            outside |= np.abs(lc - s * nc) > lim
+        o = np.flatnonzero(outside)
+        if len(o):
+            oo = owner[o]
+            dist[o] = polygon_distance(np.stack([lc[o] for lc in local], axis=1), normal[oo],
+                                       offset[oo], verts[oo])
+        # Each sample stands for the surface within the sampling gap around it: extrapolate its
+        # distance along its own tangent plane, which leaves the patch at angle theta.
+        nn = [nrm[c] if whole else nrm[c][idx] for c in range(3)]
+        cos = nn[0] * nx + nn[1] * ny
+        cos += nn[2] * nz
+        dist += cfg.gap * np.sqrt(np.maximum(1.0 - cos * cos, 0.0))
+        err = np.maximum.reduceat(dist, np.cumsum(count) - count)
+    todo = np.arange(m) if exact else np.flatnonzero(err <= cfg.threshold)
+    if len(todo) == 0:
+        return err
+    with timer("probes"):
+        spacing = max(cfg.probe_spacing, size / 32.0)
+        probes = patch_probes(normal[todo], offset[todo], verts[todo], nvert[todo], size, spacing)
+        grid_patch, edge_patch = probes.grid_patch, probes.edge_patch
+        n_probes = (np.bincount(grid_patch, minlength=len(todo))
+                    + np.bincount(edge_patch, minlength=len(todo)))
+        # Random samples leave gaps: among K probes over true surface the farthest sees its
+        # nearest sample about spacing * sqrt(ln K / pi) away (Poisson statistics); the gap
+        # tolerance is that distance at its 99% quantile for each octant's probe count.
+        tol0 = cfg.gap * np.sqrt(np.log(100.0 * np.maximum(n_probes, 1)) / np.pi)
+        # Boundary probes lie on the cube's faces (distance 0 to the boundary, exactly).
+        edge_tol0 = _probe_tol(tol0, np.zeros(len(todo)))
+    grid_open, edge_open = np.arange(len(grid_patch)), probes.distinct_edge_probes()
+    if certify:
+        with timer("probes on the patch grid"):
+            bins = _PatchBins.of(probes, todo, owner, local, s, m)
+            grid_open = bins.grid_uncovered(probes, tol0)
+            gpatch = grid_patch[grid_open]
+            gtol = _probe_tol(tol0[gpatch], boundary_distance(
+                probes.grid_points(grid_open), normal[todo][gpatch], size))
+            gu, gv = probes.grid_uv(grid_open)
+            # Boundary probes search from the cell one step into the patch, where points are.
+            eu, ev, iu, iv = probes.edge_uv(edge_open)
+            ep = edge_patch[edge_open]
+            still = bins.uncovered(np.concatenate([gpatch, ep]), np.concatenate([gu, eu]),
+                                   np.concatenate([gv, ev]),
+                                   np.concatenate([gtol, edge_tol0[ep]]),
+                                   centre_u=np.concatenate([gu, eu + iu * bins.step]),
+                                   centre_v=np.concatenate([gv, ev + iv * bins.step]))
+            n_grid = len(grid_open)
+            grid_open, edge_open = grid_open[still[still < n_grid]], edge_open[still[still >= n_grid] - n_grid]
+    with timer("probes in k-d tree"):
+        patch = grid_patch[grid_open]
+        gpts = probes.grid_points(grid_open)
+        gtol = _probe_tol(tol0[patch], boundary_distance(gpts, normal[todo][patch], size))
+        patch = np.concatenate([patch, edge_patch[edge_open]])
+        tol = np.concatenate([gtol, edge_tol0[edge_patch[edge_open]]])
+        query = np.concatenate([gpts, probes.edge_points(edge_open)], axis=1)
+        if len(patch):
+            for c in range(3):
+                query[c] += centre[todo, c][patch]
+            oct_id = todo[patch]
+            # probes farther than the largest tolerance's bound split their octant anyway
+            bound = np.inf if exact else float(np.hypot(cfg.threshold, edge_tol0.max()))
+            d = _nearest_in_octant(pts, idx, owner, query, oct_id, bound)
+            # Removing the tolerance in quadrature forgives gaps without hiding real overhangs.
+            ps = np.sqrt(np.maximum(d * d - tol * tol, 0.0))
+            np.maximum.at(err, oct_id, ps)
+    return err
+
+
+def _probe_tol(tol0: np.ndarray, boundary: np.ndarray) -> np.ndarray:
+    """A probe's gap tolerance from its octant's ``tol0`` and its distance to the patch boundary.
+
+    Near the cube's boundary a probe sees samples on one side only: half the density, so gaps
+    sqrt(2) times wider.  The factor fades in over one tolerance from the boundary.
+    """
+    return tol0 * (np.sqrt(2.0) - (np.sqrt(2.0) - 1.0) * np.clip(boundary / tol0, 0.0, 1.0))
+
+
+_MARGIN = 1.0 + 1e-9
+"""Squared-distance bounds are inflated by this factor, so rounding never proves a probe covered."""
+
+
+@dataclass
+class _PatchBins:
+    """The points of T octants binned on their patches' probe grids (cells between grid lines).
+
+    A point at in-plane distance c from a probe (which lies on the plane) and at height s off
+    the plane is sqrt(c^2 + s^2) away from it: each cell keeps one of its points (in-plane
+    coordinates and s^2, NaN for an empty cell) to prove probes near it covered.  Each octant's
+    cells carry a border of 2 empty cells, so a 5x5 window never leaves the octant's block.
+    """
+
+    kc: int                  # cells per side
+    radius: float            # the grid spans [-radius, radius] along u and v
+    step: float
+    occupied: np.ndarray     # (T, kc, kc) bool
+    rep: np.ndarray          # (T * (kc + 4)^2,) complex128: float32 u, v, s^2 (and 0) of the
+                             # cell's point, packed so that one gather fetches a cell
+    height2: np.ndarray      # (T,) largest s^2 of the octant's points
+
+    @classmethod
+    def of(cls, probes: PatchProbes, todo: np.ndarray, owner: np.ndarray, local: list,
+           s: np.ndarray, m: int) -> "_PatchBins":
+        t_count, kc = len(todo), probes.k - 1
+        radius = probes.g[-1]
+        step = 2.0 * radius / kc
+        rank = np.full(m, -1, dtype=np.int64)
+        rank[todo] = np.arange(t_count)
+        pt = rank[owner]
+        if t_count < m:
+            keep = np.flatnonzero(pt >= 0)
+            pt = pt[keep]
+            lx, ly, lz, sk = (a[keep] for a in (*local, s))
+        else:
+            (lx, ly, lz), sk = local, s
+        counts = np.bincount(pt, minlength=t_count)
+        s2 = sk * sk
+        height2 = np.maximum.reduceat(s2, np.cumsum(counts) - counts)
+        cid, uv = pt, []
+        for axis in (probes.u, probes.v):
+            w = lx * np.repeat(axis[:, 0], counts) + ly * np.repeat(axis[:, 1], counts)
+            w += lz * np.repeat(axis[:, 2], counts)
+            uv.append(w)
+            cid = cid * (kc + 4) + 2 + np.clip(np.floor((w + radius) / step).astype(np.int64),
+                                               0, kc - 1)
+        rep = np.full((t_count * (kc + 4) ** 2, 4), np.nan, dtype=np.float32)
+        rep[cid, 0], rep[cid, 1], rep[cid, 2] = uv[0], uv[1], s2
+        occupied = ~np.isnan(rep[:, 2].reshape(t_count, kc + 4, kc + 4)[:, 2:-2, 2:-2])
+        rep = rep.view(np.complex128).ravel()
+        return cls(kc=kc, radius=radius, step=step, occupied=occupied, rep=rep, height2=height2)
+
+    def grid_uncovered(self, probes: PatchProbes, tol0: np.ndarray) -> np.ndarray:
+        """Grid probes not proved covered by the 4 cells they are a corner of (each point of those
+        lies within a cell diagonal in the plane), against the octant's least tolerance tol0."""
+        k, t_count = self.kc + 1, len(tol0)
+        pad = np.zeros((t_count, k + 1, k + 1), dtype=bool)
+        pad[:, 1:k, 1:k] = self.occupied
+        near = pad[:, :k, :k] | pad[:, 1:, :k]
+        near |= pad[:, :k, 1:]
+        near |= pad[:, 1:, 1:]
+        diag2 = 2.0 * np.diff(probes.g).max() ** 2
+        cheap = (diag2 + self.height2) * _MARGIN <= tol0 * tol0
+        ok = near.ravel()[probes.grid]
+        ok &= cheap[probes.grid_patch]
+        return np.flatnonzero(~ok)
+
+    def uncovered(self, patch: np.ndarray, wu: np.ndarray, wv: np.ndarray, tol: np.ndarray,
+                  centre_u: np.ndarray | None = None, centre_v: np.ndarray | None = None
+                  ) -> np.ndarray:
+        """Probes (patch, in-plane coordinates, tolerance) with no kept point within tol among
+        the cells of the 5x5 window (nearest cells first) around the probe's cell, or around the
+        cell of ``centre`` (a point near the probe on the side where points are expected)."""
+        kc, side = self.kc, self.kc + 4
+        cell = patch
+        for w, c in ((wu, centre_u), (wv, centre_v)):
+            ci = np.floor(((w if c is None else c) + self.radius) / self.step).astype(np.int64)
+            cell = cell * side + 2 + np.clip(ci, 0, kc - 1)
+        wu, wv = wu.astype(np.float32), wv.astype(np.float32)
+        # float32 storage moves a point by < 1e-7 relative: the bound allows for it
+        tol2 = (tol * tol * (1.0 - _F32_SLACK)).astype(np.float32)
+        open_ = np.arange(len(patch))
+        for du, dv in _WINDOW:
+            if len(open_) == 0:
+                break
+            r = np.take(self.rep, cell[open_] + (du * side + dv)).view(np.float32).reshape(-1, 4)
+            a = wu[open_] - r[:, 0]
+            b = wv[open_] - r[:, 1]
+            d2 = a * a + b * b
+            d2 += r[:, 2]
+            open_ = open_[~(d2 <= tol2[open_])]
+        return open_
+
+
+_F32_SLACK = 1e-4
+"""Relative room left in tol^2 for the float32 in-plane distances (errors far below 1e-5)."""
+
+
+_WINDOW = sorted(((du, dv) for du in range(-2, 3) for dv in range(-2, 3)),
+                 key=lambda o: (o[0] ** 2 + o[1] ** 2, o))
+"""Cell offsets around a probe's cell, nearest first."""
+
+
+def _nearest_in_octant(pts, idx, owner, query, oct_id, bound: float) -> np.ndarray:
+    """Distance from each query (rows (3, P)) to the nearest point (rows (3, N)) of its own
+    octant (``owner`` of ``idx``).
+
+    Every involved octant is moved to its own place along x (octant i by i * _SEPARATION), so
+    one k-d tree answers all of them and no query can reach another octant's points.
+    """
+    wanted = np.zeros(int(owner.max()) + 1 if len(owner) else 0, dtype=bool)
+    wanted[oct_id] = True
+    keep = wanted[owner]
+    moved = np.take(pts, idx[keep], axis=1).T.copy()
+    moved[:, 0] += owner[keep] * _SEPARATION
+    q = query.T.copy()
+    q[:, 0] += oct_id * _SEPARATION
+    tree = cKDTree(moved, leafsize=16, balanced_tree=False, compact_nodes=False)
+    return tree.query(q, k=1, distance_upper_bound=bound, workers=-1)[0]
+
+
+def _ranges(start: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Concatenation of ``arange(s, s + c)`` for all pairs, without a Python loop."""
+    total = int(count.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.int64)
+    offs = np.cumsum(count) - count
+    return np.repeat(start - offs, count) + np.arange(total)
+
+
+class _NoTimer:
+    def __call__(self, name: str):
+        return self
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+_no_timer = _NoTimer()

@@ -1,0 +1,180 @@
+"""The fast adaptive build decides every octant as the plain formulation does, and measures the
+same delta_O: the probes it settles on the patch grid are exactly those the k-d tree would read
+as zero, and the moments it sums faster are the same numbers."""
+
+import numpy as np
+import pytest
+import trimesh
+
+import model.octree.build as build_module
+from model.octree import build_octree
+from model.octree.geometry import plane_basis
+
+from .conftest import MESH_FILES, mesh_points, shared_mesh, sphere_points
+from .reference_error import reference_patch_errors
+
+TOLERANCE = 1e-9
+"""Largest difference allowed between the two delta_O values of a node (cube units)."""
+
+
+def reference_build(cloud, depth, **kwargs):
+    original = build_module.patch_errors
+    build_module.patch_errors = reference_patch_errors
+    try:
+        return build_octree(cloud, depth, neighbors=False, **kwargs)
+    finally:
+        build_module.patch_errors = original
+
+
+def assert_same(fast, ref):
+    """Same nodes and labels at every depth; delta_O equal where measured (inf where inf)."""
+    assert fast.nodes_per_depth() == ref.nodes_per_depth()
+    for a, b in zip(fast.levels, ref.levels):
+        assert np.array_equal(a.label, b.label), f"depth {a.depth}: {np.sum(a.label != b.label)} labels differ"
+        assert np.array_equal(np.isnan(a.error), np.isnan(b.error))
+        assert np.array_equal(np.isinf(a.error), np.isinf(b.error))
+        both = np.isfinite(a.error)
+        assert np.abs(a.error[both].astype(float) - b.error[both]).max(initial=0.0) <= TOLERANCE
+
+
+def holey_sphere(n, seed):
+    """A sphere with 40 random round holes of random sizes and a sparse band: every probe path
+    (covered on the grid, settled by the k-d tree, farther than the bound) is taken."""
+    rng = np.random.default_rng(seed)
+    pts, nrm = sphere_points(n, seed=seed)
+    centres = rng.normal(size=(40, 3))
+    centres /= np.linalg.norm(centres, axis=1, keepdims=True)
+    radii = rng.uniform(0.01, 0.12, 40)
+    hole = ((pts[:, None] - centres[None]) ** 2).sum(2) < radii[None] ** 2
+    keep = ~hole.any(1) & ~((np.abs(pts[:, 2]) < 0.1) & (rng.random(n) < 0.8))
+    return pts[keep], nrm[keep]
+
+
+def cabinet_points(n, seed=0):
+    from model.data.shapes import generate
+    return mesh_points(generate("cabinet", 2), n, seed=seed)
+
+
+@pytest.mark.parametrize("make, depth", [
+    # samples about one voxel apart: the grid tests' bounds are close to the tolerance here
+    (lambda: sphere_points(25_000, seed=1), 6),
+    (lambda: holey_sphere(25_000, seed=2), 6),
+    (lambda: cabinet_points(40_000), 6),
+    (lambda: sphere_points(40_000, seed=1), 7),
+    (lambda: holey_sphere(60_000, seed=2), 7),
+    (lambda: holey_sphere(20_000, seed=3), 8),
+    (lambda: cabinet_points(50_000), 8),
+    (lambda: mesh_points(trimesh.creation.box(extents=(1.0, 0.3, 0.7)), 30_000, seed=4), 6),
+])
+def test_fast_build_matches_the_plain_formulation_on_generated_shapes(make, depth):
+    cloud = make()
+    fast = build_octree(cloud, depth)
+    assert_same(fast, reference_build(cloud, depth))
+    # the grid-settled probes are not a different answer, only a shortcut
+    assert_same(fast, build_octree(cloud, depth, certify=False))
+
+
+def test_fast_build_matches_with_leaf_measurement_and_other_settings():
+    cloud = holey_sphere(30_000, seed=5)
+    kwargs = dict(measure_leaves=True, threshold=2.0, adaptive_depth=3, full_depth=1)
+    assert_same(build_octree(cloud, 7, **kwargs), reference_build(cloud, 7, **kwargs))
+
+
+@pytest.mark.parametrize("name", MESH_FILES)
+def test_fast_build_matches_the_plain_formulation_on_every_shared_mesh(name):
+    mesh = trimesh.load(shared_mesh(name), force="mesh")
+    cloud = mesh_points(mesh, 30_000, seed=0)
+    for depth in (6, 7, 8):
+        assert_same(build_octree(cloud, depth), reference_build(cloud, depth))
+
+
+def test_segment_sums_equal_reduceat_bit_for_bit():
+    rng = np.random.default_rng(0)
+    lengths = np.concatenate([rng.integers(1, 9, 3000), rng.integers(9, 40, 50), [1, 8, 9, 100]])
+    rng.shuffle(lengths)
+    starts = np.cumsum(lengths) - lengths
+    new = np.zeros(lengths.sum(), dtype=bool)
+    new[starts] = True
+    rows = rng.normal(size=(12, len(new))) * rng.uniform(1e-3, 1e3, (12, 1))
+    got = build_module._segment_sums(rows, new, len(starts))
+    assert np.array_equal(got, np.add.reduceat(rows, starts, axis=1))
+
+
+def test_boundary_probes_lie_on_the_cube_and_repeats_are_dropped():
+    from model.octree.geometry import cube_polygons, patch_probes
+    rng = np.random.default_rng(1)
+    n = rng.normal(size=(500, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    off = rng.uniform(-0.3, 0.3, 500)
+    verts, count = cube_polygons(n, off, 1.0)
+    probes = patch_probes(n, off, verts, count, 1.0, 1.0 / 16)
+    pts = probes.edge_points(np.arange(len(probes.edge_patch)))
+    # on the plane, on the cube's surface (exactly), inside the cube
+    assert np.allclose((pts.T * n[probes.edge_patch]).sum(1) + off[probes.edge_patch], 0, atol=1e-12)
+    assert np.all(np.abs(pts).max(0) == 0.5)
+    live = probes.distinct_edge_probes()
+    unique = {(p, *np.round(x, 12)) for p, x in zip(probes.edge_patch, pts.T)}
+    assert len(unique) == len(live)
+    # in-plane coordinates agree with the 3D points
+    eu, ev, iu, iv = probes.edge_uv(live)
+    u, v = plane_basis(n)
+    pl = probes.edge_patch[live]
+    assert np.allclose(eu, (pts[:, live].T * u[pl]).sum(1), atol=1e-12)
+    assert np.allclose(ev, (pts[:, live].T * v[pl]).sum(1), atol=1e-12)
+    # the inward direction points to the side of the edge where the polygon is
+    mean = np.array([verts[i, :count[i]].mean(0) for i in range(len(n))])
+    cu, cv = (mean * u).sum(1)[pl], (mean * v).sum(1)[pl]
+    assert np.all(iu * (cu - eu) + iv * (cv - ev) > 0)
+    assert np.allclose(np.hypot(iu, iv), 1.0)
+
+
+def test_probes_proved_covered_have_a_point_of_their_own_octant_within_tolerance():
+    """The invariant behind the shortcut, checked by brute force on random patches: whatever the
+    patch grid proves covered has a point of the same octant within the probe's tolerance (3D
+    distance, height off the plane included); and the shortcut is not vacuous."""
+    from model.octree.geometry import cube_polygons, patch_probes
+    from model.octree.patch_error import _PatchBins
+
+    rng = np.random.default_rng(7)
+    t_count, size, spacing = 60, 1.0, 1.0 / 8
+    normal = rng.normal(size=(t_count, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    offset = rng.uniform(-0.2, 0.2, t_count)
+    verts, count = cube_polygons(normal, offset, size)
+    probes = patch_probes(normal, offset, verts, count, size, spacing)
+    # points: near each plane (heights up to 0.06), inside the cube, some patches sparse
+    per = rng.integers(20, 400, t_count)
+    owner = np.repeat(np.arange(t_count), per)
+    u, v = plane_basis(normal)
+    a, b = rng.uniform(-0.9, 0.9, (2, len(owner)))
+    h = rng.uniform(-0.06, 0.06, len(owner))
+    p = (-offset[owner, None] * normal[owner] + a[:, None] * u[owner] + b[:, None] * v[owner]
+         + h[:, None] * normal[owner])
+    inside = (np.abs(p) <= 0.5).all(1)
+    p, owner, h = p[inside], owner[inside], h[inside]
+    s = (p * normal[owner]).sum(1) + offset[owner]
+    bins = _PatchBins.of(probes, np.arange(t_count), owner, list(p.T), s, t_count)
+
+    tol0 = rng.uniform(0.12, 0.3, t_count)
+    grid_open = bins.grid_uncovered(probes, tol0)
+    grid_ok = np.setdiff1d(np.arange(len(probes.grid)), grid_open)
+    gpts = probes.grid_points(grid_ok).T
+    gpatch = probes.grid_patch[grid_ok]
+    live = probes.distinct_edge_probes()
+    eu, ev, iu, iv = probes.edge_uv(live)
+    ep = probes.edge_patch[live]
+    etol = rng.uniform(0.1, 0.35, len(live))
+    edge_open = bins.uncovered(ep, eu, ev, etol, centre_u=eu + iu * bins.step,
+                               centre_v=ev + iv * bins.step)
+    edge_ok = np.setdiff1d(np.arange(len(live)), edge_open)
+    epts = probes.edge_points(live[edge_ok]).T
+
+    def nearest(q, patch):
+        return np.array([np.linalg.norm(p[owner == t] - x, axis=1).min(initial=np.inf)
+                         for x, t in zip(q, patch)])
+
+    assert np.all(nearest(gpts, gpatch) <= tol0[gpatch] * (1 + 1e-9))
+    assert np.all(nearest(epts, ep[edge_ok]) <= etol[edge_ok] * (1 + 1e-9))
+    assert len(grid_ok) > 0.3 * len(probes.grid) and len(edge_ok) > 0.3 * len(live)
+    # and some probes are left for the k-d tree (sparse patches, small tolerances)
+    assert len(grid_open) > 0 and len(edge_open) > 0
