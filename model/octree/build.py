@@ -1,9 +1,9 @@
 """Building full (O-CNN) and patch-guided adaptive (paper section 3) octrees from oriented points.
 
 Points are sorted once by their finest Morton key, so every octant of every depth owns a
-contiguous run of points.  Point moments are summed bottom-up (one ``reduceat`` per depth), the
+contiguous run of points.  Point moments are summed bottom-up (one segment sum per depth), the
 tree is grown top-down, and at each adaptive depth the planes and both directions of the
-patch error are computed for all candidate octants at once.
+patch error (:mod:`model.octree.patch_error`) are computed for all candidate octants at once.
 """
 
 from __future__ import annotations
@@ -69,8 +69,8 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
     counted as patch error.  ``normalization`` fixes the cube frame (default: the points' own
     bounding box, :func:`normalization_of`); points outside that cube are dropped.
     ``certify=False`` answers every patch->surface probe with the k-d tree instead of first
-    settling what the finest voxels' occupancy proves (same result, slower: the reference the
-    tests compare against).  ``timings`` receives seconds per build stage.
+    settling those the points binned on the patch grid prove covered (the same octree, slower).
+    ``timings`` receives seconds per build stage.
     """
     timer = _Timer(timings)
     if not isinstance(depth, (int, np.integer)) or not 1 <= depth <= MAX_BUILD_DEPTH:

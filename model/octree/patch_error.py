@@ -2,9 +2,10 @@
 and the input points inside it, measured for all octants of one depth at once.
 
 surface->patch is exact per point.  patch->surface is measured at probes laid on each patch
-(:func:`model.octree.geometry.polygon_probes`); most probes are settled by the occupancy of the
-finest voxels (a sample in a voxel next to the probe proves the probe covered) and only the rest
-are answered by a k-d tree, which gives the same values as asking the k-d tree for every probe.
+(:class:`model.octree.geometry.PatchProbes`).  Most probes are settled by the octant's points
+binned on the patch's probe grid (a point near the probe proves it within the gap tolerance,
+where it reads zero) and only the rest go to a k-d tree: the values are those of asking the k-d
+tree for every probe (``tests/octree/test_build_equivalence.py`` holds this).
 """
 
 from __future__ import annotations
