@@ -115,7 +115,8 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
         npts = np.zeros(n, dtype=np.int32)
         npts[nonempty] = mom.count[ne]
         with timer("planes"):
-            sums = np.take(mom.sums, ne, axis=1)
+            # every non-empty octant of the depth, in key order: the moments as they are
+            sums = mom.sums if len(ne) == len(mom.key) else np.take(mom.sums, ne, axis=1)
             normal, centroid, _ = fit_planes(mom.count[ne], sums[:3], sums[3:9], sums[9:])
             centre = (morton.decode(node_key[nonempty])[0] + 0.5) * size
             offset = (normal * (centre - (centroid + 0.5))).sum(1)

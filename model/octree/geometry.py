@@ -80,7 +80,7 @@ def fit_planes(count: np.ndarray, s1: np.ndarray, s2: np.ndarray, nsum: np.ndarr
     cov = s2 / count
     for r, (i, j) in enumerate(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
         cov[r] -= m[i] * m[j]
-    normal = np.empty((len(count), 3))
+    normal = np.empty((3, len(count)))           # filled as rows, returned transposed
     degenerate = count < 3
     full = np.flatnonzero(~degenerate)
     if len(full):
@@ -89,7 +89,7 @@ def fit_planes(count: np.ndarray, s1: np.ndarray, s2: np.ndarray, nsum: np.ndarr
         v = eigenvector(c, vals[2])
         # The closed-form eigenvalues carry sqrt(eps) relative error near a double root; one
         # Rayleigh-quotient step makes the smallest one accurate before taking its vector again.
-        normal[full] = eigenvector(c, _rayleigh(c, v))
+        normal[:, full] = eigenvector(c, _rayleigh(c, v)).T
         # Spread along the second axis below ~0.03% of the first: a line (or a point), no plane.
         degenerate[full] = (vals[1] <= 1e-7 * vals[0]) | (vals[0] <= 0)
     # One point has no spread: its normal is its own (what _line_normals gives, without the work).
@@ -98,13 +98,14 @@ def fit_planes(count: np.ndarray, s1: np.ndarray, s2: np.ndarray, nsum: np.ndarr
     a = a / np.maximum(np.sqrt((a * a).sum(0)), 1e-300)
     an = np.sqrt((a * a).sum(0))
     ok = an > 1e-12
-    normal[single[ok]] = (a[:, ok] / an[ok]).T
+    normal[:, single[ok]] = a[:, ok] / an[ok]
     rest = degenerate.copy()
     rest[single[ok]] = False
     if rest.any():
-        normal[rest] = _line_normals(cov[:, rest], nsum[:, rest])
-    flip = np.einsum("mj,jm->m", normal, nsum) < 0
-    normal[flip] *= -1.0
+        normal[:, rest] = _line_normals(cov[:, rest], nsum[:, rest]).T
+    flip = (normal * nsum).sum(0) < 0
+    normal[:, flip] *= -1.0
+    normal = normal.T
     return normal, np.ascontiguousarray(m.T), degenerate
 
 
