@@ -228,12 +228,10 @@ def _segment_sums(rows: np.ndarray, new: np.ndarray, n: int) -> np.ndarray:
     """
     starts = np.flatnonzero(new)
     tail = np.flatnonzero(~new)
-    seg = np.cumsum(new) - 1
+    st = (np.cumsum(new) - 1)[tail]
     out = np.take(rows, starts, axis=1)
-    tails = np.take(rows, tail, axis=1)
-    st = seg[tail]
-    for r in range(len(rows)):
-        out[r] += np.bincount(st, weights=tails[r], minlength=n)
+    for r, row in enumerate(rows):           # row by row: no second copy of all rows
+        out[r] += np.bincount(st, weights=row[tail], minlength=n)
     count = np.diff(np.r_[starts, rows.shape[1]])
     long_ = np.flatnonzero(count > 8)
     if len(long_):

@@ -261,15 +261,6 @@ class PatchProbes:
     def edge_patch(self) -> np.ndarray:
         return np.repeat(self.edge_poly, self.per_edge)
 
-    def distinct_edge_probes(self) -> np.ndarray:
-        """Indices of the boundary probes without repeats: a polygon with fewer than 6 vertices
-        closes on a zero-length edge (its last vertex repeated as padding), whose probes all
-        lie on that vertex, so only the first of them is kept."""
-        same = np.all(self.edge_a == self.edge_b, axis=1)
-        keep = np.ones((len(same), self.per_edge), dtype=bool)
-        keep[same, 1:] = False
-        return np.flatnonzero(keep)
-
     def grid_uv(self, sel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """In-plane coordinates (g_i, g_j) of the grid probes ``grid[sel]``."""
         ij = self.grid[sel] % (self.k * self.k)
@@ -329,8 +320,10 @@ def patch_probes(normal: np.ndarray, offset: np.ndarray, verts: np.ndarray, coun
         ok = np.abs(r[:, :, None] + q[:, None, :]) <= half
         inside = ok if inside is None else np.logical_and(inside, ok, out=inside)
     em, ek = np.nonzero(np.arange(MAX_POLYGON)[None] < count[:, None])
+    # edge k runs from vertex k to vertex k + 1, the last one back to vertex 0
+    nxt = np.where(ek + 1 < count[em], ek + 1, 0)
     return PatchProbes(u=u, v=v, foot=foot, g=g, grid=np.flatnonzero(inside),
-                       edge_a=verts[em, ek], edge_b=verts[em, (ek + 1) % MAX_POLYGON],
+                       edge_a=verts[em, ek], edge_b=verts[em, nxt],
                        edge_poly=em, per_edge=int(np.ceil(np.sqrt(2.0) * size / spacing)))
 
 

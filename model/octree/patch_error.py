@@ -93,8 +93,10 @@ def patch_errors(pts: np.ndarray, nrm: np.ndarray, cfg: PatchErrorSettings, cent
         tol0 = cfg.gap * np.sqrt(np.log(100.0 * np.maximum(n_probes, 1)) / np.pi)
         # Boundary probes lie on the cube's faces (distance 0 to the boundary, exactly).
         edge_tol0 = _probe_tol(tol0, np.zeros(len(todo)))
-    grid_open, edge_open = np.arange(len(grid_patch)), probes.distinct_edge_probes()
-    if certify:
+    grid_open, edge_open = np.arange(len(grid_patch)), np.arange(len(edge_patch))
+    # The patch grid's cells are a probe spacing wide: when points lie much closer together
+    # than that, the tolerance is far smaller than a cell and the grid would prove little.
+    if certify and np.median(tol0) >= 0.5 * (probes.g[1] - probes.g[0]):
         with timer("probes on the patch grid"):
             bins = _PatchBins.of(probes, todo, owner, local, s, m)
             grid_open = bins.grid_uncovered(probes, tol0)

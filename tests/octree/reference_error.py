@@ -74,7 +74,9 @@ def _probes(normal, offset, verts, count, size, spacing):
     mi, gi = np.nonzero((np.abs(grid) <= size / 2.0 * (1.0 + 1e-9)).all(2))
     e = int(np.ceil(np.sqrt(2.0) * size / spacing))
     t = np.arange(e) / e
-    a, b = verts, np.roll(verts, -1, axis=1)
+    k6 = np.arange(MAX_POLYGON)[None]
+    nxt = np.where(k6 + 1 < count[:, None], k6 + 1, 0)                  # the last edge closes
+    a, b = verts, np.take_along_axis(verts, nxt[:, :, None].repeat(3, 2), axis=1)
     edge = a[:, :, None] + t[None, None, :, None] * (b - a)[:, :, None]
     ei, ki = np.nonzero(np.arange(MAX_POLYGON)[None] < count[:, None])
     pts = np.concatenate([grid[mi, gi], edge[ei, ki].reshape(-1, 3)])

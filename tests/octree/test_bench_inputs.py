@@ -32,3 +32,36 @@ def test_snapped_inputs_put_every_point_in_the_same_octant_in_float32_and_float6
     u32 = ((unsnapped - 0.5) * 2.0).astype(np.float32)
     exact = np.clip(np.floor(unsnapped * 2 ** depth).astype(np.int64), 0, 2 ** depth - 1)
     assert (np.clip(_float32_voxels(u32, depth), 0, 2 ** depth - 1) != exact).any()
+
+
+def test_label_change_check_measures_a_patch_against_dense_samples():
+    """bench.octree_label_changes: the dense Hausdorff distance of a flat patch is the offset of
+    the samples from it, and the previous probe rule gives the zero-length closing edge back."""
+    import trimesh
+
+    from bench.octree_label_changes import closing_edge_unprobed, dense_hausdorff
+    from model.octree import build_octree
+    from model.octree import patch_error
+    from model.octree.geometry import cube_polygons
+
+    rng = np.random.default_rng(3)
+    pts = np.column_stack([rng.random((40_000, 2)), np.full(40_000, 0.53)])  # the plane z = 0.53
+    pts = np.vstack([pts, [[0, 0, 0], [1, 1, 1]]])                           # the cube's extent
+    octree = build_octree((pts, np.tile([0.0, 0.0, 1.0], (len(pts), 1))), 5, neighbors=False)
+    lv = octree.levels[4]
+    interior = (lv.npoints > 100) & np.all(np.abs(lv.centers()[:, :2] - 0.5) < 0.3, axis=1)
+    node = int(np.flatnonzero(interior)[0])
+    dense = octree.normalizations[0].to_cube(
+        np.column_stack([rng.random((400_000, 2)), np.full(400_000, 0.53)]))
+    # ~0 (the dense samples' own gaps, at most a few thousandths of the octant at its corners)
+    assert dense_hausdorff(octree, 4, node, dense) < 0.1 * lv.size
+    lifted = dense + [0.0, 0.0, 0.3 * lv.size]
+    assert 0.3 * lv.size <= dense_hausdorff(octree, 4, node, lifted) < 0.4 * lv.size
+
+    n = np.array([[0.3, 0.2, 0.93]]) / np.linalg.norm([0.3, 0.2, 0.93])
+    verts, count = cube_polygons(n, np.zeros(1), 1.0)
+    assert count[0] < 6
+    with closing_edge_unprobed():
+        probes = patch_error.patch_probes(n, np.zeros(1), verts, count, 1.0, 0.1)
+    last = np.linalg.norm(probes.edge_b - probes.edge_a, axis=1)
+    assert last[-1] == 0 and np.all(last[:-1] > 0)

@@ -100,7 +100,7 @@ def test_segment_sums_equal_reduceat_bit_for_bit():
     assert np.array_equal(got, np.add.reduceat(rows, starts, axis=1))
 
 
-def test_boundary_probes_lie_on_the_cube_and_repeats_are_dropped():
+def test_boundary_probes_cover_every_edge_on_the_cube():
     from model.octree.geometry import cube_polygons, patch_probes
     rng = np.random.default_rng(1)
     n = rng.normal(size=(500, 3))
@@ -108,13 +108,15 @@ def test_boundary_probes_lie_on_the_cube_and_repeats_are_dropped():
     off = rng.uniform(-0.3, 0.3, 500)
     verts, count = cube_polygons(n, off, 1.0)
     probes = patch_probes(n, off, verts, count, 1.0, 1.0 / 16)
-    pts = probes.edge_points(np.arange(len(probes.edge_patch)))
+    live = np.arange(len(probes.edge_patch))
+    pts = probes.edge_points(live)
     # on the plane, on the cube's surface (exactly), inside the cube
     assert np.allclose((pts.T * n[probes.edge_patch]).sum(1) + off[probes.edge_patch], 0, atol=1e-12)
     assert np.all(np.abs(pts).max(0) == 0.5)
-    live = probes.distinct_edge_probes()
+    # every edge, the closing one included, has length: the probes are all distinct points
     unique = {(p, *np.round(x, 12)) for p, x in zip(probes.edge_patch, pts.T)}
     assert len(unique) == len(live)
+    assert np.all(np.linalg.norm(probes.edge_b - probes.edge_a, axis=1) > 1e-9)
     # in-plane coordinates agree with the 3D points
     eu, ev, iu, iv = probes.edge_uv(live)
     u, v = plane_basis(n)
@@ -160,7 +162,7 @@ def test_probes_proved_covered_have_a_point_of_their_own_octant_within_tolerance
     grid_ok = np.setdiff1d(np.arange(len(probes.grid)), grid_open)
     gpts = probes.grid_points(grid_ok).T
     gpatch = probes.grid_patch[grid_ok]
-    live = probes.distinct_edge_probes()
+    live = np.arange(len(probes.edge_patch))
     eu, ev, iu, iv = probes.edge_uv(live)
     ep = probes.edge_patch[live]
     etol = rng.uniform(0.1, 0.35, len(live))
