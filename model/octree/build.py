@@ -181,7 +181,9 @@ def _sorted_points(cube: np.ndarray, normals: np.ndarray, depth: int):
     res = 1 << depth
     ijk = np.clip((cube * res).astype(np.int64), 0, res - 1)
     key = morton.encode(ijk)
-    order = np.argsort(key)              # the order of points inside one voxel does not matter
+    # The order of points inside a voxel is part of the result: it sets the rounding of the sums
+    # and which points the spacing estimate's thinning keeps.  argsort's tie order is kept.
+    order = np.argsort(key)
     return np.take(cube.T, order, axis=1), np.take(normals.T, order, axis=1), key[order]
 
 
@@ -227,13 +229,15 @@ def _segment_sums(rows: np.ndarray, new: np.ndarray, n: int) -> np.ndarray:
     speed-up: the patch error is not continuous in the plane where a polygon is degenerate.
     """
     starts = np.flatnonzero(new)
+    count = np.diff(np.r_[starts, rows.shape[1]])
+    long_ = np.flatnonzero(count > 8)
+    if count[long_].sum() * 2 > rows.shape[1]:      # mostly long segments (dense voxels)
+        return np.add.reduceat(rows, starts, axis=1)
     tail = np.flatnonzero(~new)
     st = (np.cumsum(new) - 1)[tail]
     out = np.take(rows, starts, axis=1)
     for r, row in enumerate(rows):           # row by row: no second copy of all rows
         out[r] += np.bincount(st, weights=row[tail], minlength=n)
-    count = np.diff(np.r_[starts, rows.shape[1]])
-    long_ = np.flatnonzero(count > 8)
     if len(long_):
         idx = _ranges(starts[long_], count[long_])
         out[:, long_] = np.add.reduceat(np.take(rows, idx, axis=1),
