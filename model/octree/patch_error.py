@@ -262,7 +262,7 @@ def _nearest_in_octant(pts, idx, owner, query, oct_id, bound: float) -> np.ndarr
     q = query.T.copy()
     q[:, 0] += oct_id * _SEPARATION
     tree = cKDTree(moved, leafsize=16, balanced_tree=False, compact_nodes=False)
-    return tree.query(q, k=1, distance_upper_bound=bound, workers=-1)[0]
+    return tree.query(q, k=1, distance_upper_bound=bound)[0]   # one thread: builds run side by side
 
 
 def _ranges(start: np.ndarray, count: np.ndarray) -> np.ndarray:
