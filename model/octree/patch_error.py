@@ -94,12 +94,15 @@ def patch_errors(pts: np.ndarray, nrm: np.ndarray, cfg: PatchErrorSettings, cent
         # Boundary probes lie on the cube's faces (distance 0 to the boundary, exactly).
         edge_tol0 = _probe_tol(tol0, np.zeros(len(todo)))
     grid_open, edge_open = np.arange(len(grid_patch)), np.arange(len(edge_patch))
-    # The patch grid's cells are a probe spacing wide: when points lie much closer together
-    # than that, the tolerance is far smaller than a cell and the grid would prove little.
-    if certify and np.median(tol0) >= 0.5 * (probes.g[1] - probes.g[0]):
+    # Cells about half the gap tolerance wide let a 5x5 window reach the points that cover a
+    # probe; far denser clouds than the probe grid (tolerance below a quarter cell) skip this.
+    step = probes.g[1] - probes.g[0]
+    scale = 2.0 ** np.clip(np.round(np.log2(max(np.median(tol0), 1e-300) / (2.0 * step))), -2, 3)
+    if certify and np.median(tol0) >= 0.5 * step * scale:
         with timer("probes on the patch grid"):
-            bins = _PatchBins.of(probes, todo, owner, local, s, m)
-            grid_open = bins.grid_uncovered(probes, tol0)
+            bins = _PatchBins.of(probes, todo, owner, local, s, m, scale)
+            if scale <= 1:
+                grid_open = bins.grid_uncovered(probes, tol0)
             gpatch = grid_patch[grid_open]
             gtol = _probe_tol(tol0[gpatch], boundary_distance(
                 probes.grid_points(grid_open), normal[todo][gpatch], size))
@@ -110,8 +113,8 @@ def patch_errors(pts: np.ndarray, nrm: np.ndarray, cfg: PatchErrorSettings, cent
             still = bins.uncovered(np.concatenate([gpatch, ep]), np.concatenate([gu, eu]),
                                    np.concatenate([gv, ev]),
                                    np.concatenate([gtol, edge_tol0[ep]]),
-                                   centre_u=np.concatenate([gu, eu + iu * bins.step]),
-                                   centre_v=np.concatenate([gv, ev + iv * bins.step]))
+                                   centre_u=np.concatenate([gu, eu + iu * bins.cell]),
+                                   centre_v=np.concatenate([gv, ev + iv * bins.cell]))
             n_grid = len(grid_open)
             grid_open, edge_open = grid_open[still[still < n_grid]], edge_open[still[still >= n_grid] - n_grid]
     with timer("probes in k-d tree"):
@@ -149,17 +152,20 @@ _MARGIN = 1.0 + 1e-9
 
 @dataclass
 class _PatchBins:
-    """The points of T octants binned on their patches' probe grids (cells between grid lines).
+    """The points of T octants binned on square cells of each patch's (u, v) frame.
 
     A point at in-plane distance c from a probe (which lies on the plane) and at height s off
     the plane is sqrt(c^2 + s^2) away from it: each cell keeps one of its points (in-plane
-    coordinates and s^2, NaN for an empty cell) to prove probes near it covered.  Each octant's
-    cells carry a border of 2 empty cells, so a 5x5 window never leaves the octant's block.
+    coordinates and s^2, NaN for an empty cell) to prove probes near it covered.  Cells are the
+    probe grid's cells split or merged by a power of 2 (``scale``), so that a 5x5 window spans
+    about the gap tolerance; with ``scale <= 1`` every grid probe is a cell corner.  Each
+    octant's cells carry a border of 2 empty cells, so a window never leaves its block.
     """
 
     kc: int                  # cells per side
-    radius: float            # the grid spans [-radius, radius] along u and v
-    step: float
+    radius: float            # the cells span [-radius, radius + kc * cell) along u and v
+    cell: float              # cell edge length
+    scale: float             # cell / probe grid step, a power of 2
     occupied: np.ndarray     # (T, kc, kc) bool
     rep: np.ndarray          # (T * (kc + 4)^2,) complex128: float32 u, v, s^2 (and 0) of the
                              # cell's point, packed so that one gather fetches a cell
@@ -167,10 +173,11 @@ class _PatchBins:
 
     @classmethod
     def of(cls, probes: PatchProbes, todo: np.ndarray, owner: np.ndarray, local: list,
-           s: np.ndarray, m: int) -> "_PatchBins":
-        t_count, kc = len(todo), probes.k - 1
+           s: np.ndarray, m: int, scale: float = 1.0) -> "_PatchBins":
+        t_count = len(todo)
         radius = probes.g[-1]
-        step = 2.0 * radius / kc
+        cell = 2.0 * radius / (probes.k - 1) * scale
+        kc = int(np.ceil((probes.k - 1) / scale - 1e-9))
         rank = np.full(m, -1, dtype=np.int64)
         rank[todo] = np.arange(t_count)
         pt = rank[owner]
@@ -188,24 +195,28 @@ class _PatchBins:
             w = lx * np.repeat(axis[:, 0], counts) + ly * np.repeat(axis[:, 1], counts)
             w += lz * np.repeat(axis[:, 2], counts)
             uv.append(w)
-            cid = cid * (kc + 4) + 2 + np.clip(np.floor((w + radius) / step).astype(np.int64),
+            cid = cid * (kc + 4) + 2 + np.clip(np.floor((w + radius) / cell).astype(np.int64),
                                                0, kc - 1)
         rep = np.full((t_count * (kc + 4) ** 2, 4), np.nan, dtype=np.float32)
         rep[cid, 0], rep[cid, 1], rep[cid, 2] = uv[0], uv[1], s2
         occupied = ~np.isnan(rep[:, 2].reshape(t_count, kc + 4, kc + 4)[:, 2:-2, 2:-2])
         rep = rep.view(np.complex128).ravel()
-        return cls(kc=kc, radius=radius, step=step, occupied=occupied, rep=rep, height2=height2)
+        return cls(kc=kc, radius=radius, cell=cell, scale=scale, occupied=occupied, rep=rep,
+                   height2=height2)
 
     def grid_uncovered(self, probes: PatchProbes, tol0: np.ndarray) -> np.ndarray:
         """Grid probes not proved covered by the 4 cells they are a corner of (each point of those
-        lies within a cell diagonal in the plane), against the octant's least tolerance tol0."""
-        k, t_count = self.kc + 1, len(tol0)
-        pad = np.zeros((t_count, k + 1, k + 1), dtype=bool)
-        pad[:, 1:k, 1:k] = self.occupied
-        near = pad[:, :k, :k] | pad[:, 1:, :k]
-        near |= pad[:, :k, 1:]
+        lies within a cell diagonal in the plane), against the octant's least tolerance tol0.
+        Needs ``scale <= 1``, where grid probes are cell corners."""
+        per = int(round(1.0 / self.scale))         # cells per probe step
+        corners, t_count = self.kc + 1, len(tol0)
+        pad = np.zeros((t_count, corners + 1, corners + 1), dtype=bool)
+        pad[:, 1:corners, 1:corners] = self.occupied
+        near = pad[:, :corners, :corners] | pad[:, 1:, :corners]
+        near |= pad[:, :corners, 1:]
         near |= pad[:, 1:, 1:]
-        diag2 = 2.0 * np.diff(probes.g).max() ** 2
+        near = near[:, ::per, ::per]                 # the corners that are grid points
+        diag2 = 2.0 * max(np.diff(probes.g).max(), self.cell * per) ** 2 / per ** 2
         cheap = (diag2 + self.height2) * _MARGIN <= tol0 * tol0
         ok = near.ravel()[probes.grid]
         ok &= cheap[probes.grid_patch]
@@ -220,7 +231,7 @@ class _PatchBins:
         kc, side = self.kc, self.kc + 4
         cell = patch
         for w, c in ((wu, centre_u), (wv, centre_v)):
-            ci = np.floor(((w if c is None else c) + self.radius) / self.step).astype(np.int64)
+            ci = np.floor(((w if c is None else c) + self.radius) / self.cell).astype(np.int64)
             cell = cell * side + 2 + np.clip(ci, 0, kc - 1)
         wu, wv = wu.astype(np.float32), wv.astype(np.float32)
         # float32 storage moves a point by < 1e-7 relative: the bound allows for it
