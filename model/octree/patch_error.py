@@ -234,8 +234,11 @@ class _PatchBins:
             ci = np.floor(((w if c is None else c) + self.radius) / self.cell).astype(np.int64)
             cell = cell * side + 2 + np.clip(ci, 0, kc - 1)
         wu, wv = wu.astype(np.float32), wv.astype(np.float32)
-        # float32 storage moves a point by < 1e-7 relative: the bound allows for it
-        tol2 = (tol * tol * (1.0 - _F32_SLACK)).astype(np.float32)
+        # float32 coordinates (|w| <= radius) err by radius * 2^-24 each, and the arithmetic by
+        # 2^-24 relative: d^2 is off by at most (8 radius / tol + 7) 2^-24 of tol^2.  Twice that
+        # comes off tol^2, so rounding never proves a probe covered.
+        rel = 2.0 * (8.0 * self.radius / tol + 7.0) * 2.0 ** -24
+        tol2 = (tol * tol * np.maximum(1.0 - rel, 0.0)).astype(np.float32)
         open_ = np.arange(len(patch))
         for du, dv in _WINDOW:
             if len(open_) == 0:
@@ -247,10 +250,6 @@ class _PatchBins:
             d2 += r[:, 2]
             open_ = open_[~(d2 <= tol2[open_])]
         return open_
-
-
-_F32_SLACK = 1e-4
-"""Relative room left in tol^2 for the float32 in-plane distances (errors far below 1e-5)."""
 
 
 _WINDOW = sorted(((du, dv) for du in range(-2, 3) for dv in range(-2, 3)),
