@@ -101,22 +101,7 @@ def patch_errors(pts: np.ndarray, nrm: np.ndarray, cfg: PatchErrorSettings, cent
     if certify and np.median(tol0) >= 0.5 * step * scale:
         with timer("probes on the patch grid"):
             bins = _PatchBins.of(probes, todo, owner, local, s, m, scale)
-            if scale <= 1:
-                grid_open = bins.grid_uncovered(probes, tol0)
-            gpatch = grid_patch[grid_open]
-            gtol = _probe_tol(tol0[gpatch], boundary_distance(
-                probes.grid_points(grid_open), normal[todo][gpatch], size))
-            gu, gv = probes.grid_uv(grid_open)
-            # Boundary probes search from the cell one step into the patch, where points are.
-            eu, ev, iu, iv = probes.edge_uv(edge_open)
-            ep = edge_patch[edge_open]
-            still = bins.uncovered(np.concatenate([gpatch, ep]), np.concatenate([gu, eu]),
-                                   np.concatenate([gv, ev]),
-                                   np.concatenate([gtol, edge_tol0[ep]]),
-                                   centre_u=np.concatenate([gu, eu + iu * bins.cell]),
-                                   centre_v=np.concatenate([gv, ev + iv * bins.cell]))
-            n_grid = len(grid_open)
-            grid_open, edge_open = grid_open[still[still < n_grid]], edge_open[still[still >= n_grid] - n_grid]
+            grid_open, edge_open = _unsettled(probes, bins, tol0, edge_tol0, normal[todo], size)
     with timer("probes in k-d tree"):
         patch = grid_patch[grid_open]
         gpts = probes.grid_points(grid_open)
@@ -135,6 +120,31 @@ def patch_errors(pts: np.ndarray, nrm: np.ndarray, cfg: PatchErrorSettings, cent
             ps = np.sqrt(np.maximum(d * d - tol * tol, 0.0))
             np.maximum.at(err, oct_id, ps)
     return err
+
+
+def _unsettled(probes: PatchProbes, bins: "_PatchBins", tol0: np.ndarray, edge_tol0: np.ndarray,
+               normal: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
+    """Grid and boundary probes (indices) that the binned points do not prove within tolerance.
+
+    Grid probes first try the 4 cells they are a corner of (against their octant's least
+    tolerance); the rest, with their own tolerance, and the boundary probes try the 5x5 window,
+    boundary probes starting from the cell one step into the patch, where the points are.
+    """
+    grid_patch, edge_patch = probes.grid_patch, probes.edge_patch
+    grid_open = (bins.grid_uncovered(probes, tol0) if bins.scale <= 1
+                 else np.arange(len(grid_patch)))
+    gpatch = grid_patch[grid_open]
+    gtol = _probe_tol(tol0[gpatch], boundary_distance(probes.grid_points(grid_open),
+                                                      normal[gpatch], size))
+    gu, gv = probes.grid_uv(grid_open)
+    edge_open = np.arange(len(edge_patch))
+    eu, ev, iu, iv = probes.edge_uv(edge_open)
+    still = bins.uncovered(np.concatenate([gpatch, edge_patch]), np.concatenate([gu, eu]),
+                           np.concatenate([gv, ev]), np.concatenate([gtol, edge_tol0[edge_patch]]),
+                           centre_u=np.concatenate([gu, eu + iu * bins.cell]),
+                           centre_v=np.concatenate([gv, ev + iv * bins.cell]))
+    n_grid = len(grid_open)
+    return grid_open[still[still < n_grid]], edge_open[still[still >= n_grid] - n_grid]
 
 
 def _probe_tol(tol0: np.ndarray, boundary: np.ndarray) -> np.ndarray:

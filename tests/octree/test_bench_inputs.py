@@ -37,11 +37,8 @@ def test_snapped_inputs_put_every_point_in_the_same_octant_in_float32_and_float6
 def test_label_change_check_measures_a_patch_against_dense_samples():
     """bench.octree_label_changes: the dense Hausdorff distance of a flat patch is the offset of
     the samples from it, and the previous probe rule gives the zero-length closing edge back."""
-    import trimesh
-
     from bench.octree_label_changes import closing_edge_unprobed, dense_hausdorff
-    from model.octree import build_octree
-    from model.octree import patch_error
+    from model.octree import build_octree, patch_error
     from model.octree.geometry import cube_polygons
 
     rng = np.random.default_rng(3)
