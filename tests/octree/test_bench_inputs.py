@@ -62,3 +62,22 @@ def test_label_change_check_measures_a_patch_against_dense_samples():
         probes = patch_error.patch_probes(n, np.zeros(1), verts, count, 1.0, 0.1)
     last = np.linalg.norm(probes.edge_b - probes.edge_a, axis=1)
     assert last[-1] == 0 and np.all(last[:-1] > 0)
+
+
+def test_another_checkout_loads_beside_this_one():
+    """bench.octree_versions imports another checkout's model.octree without replacing ours."""
+    import os
+
+    import model.octree as ours
+    from bench.octree_versions import load_other
+
+    from .conftest import sphere_points
+
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    other = load_other(root)
+    assert other is not ours and other.build_octree is not ours.build_octree
+    import model.octree as again
+    assert again is ours                                  # ours is back in place
+    cloud = sphere_points(5_000, seed=2)
+    a, b = ours.build_octree(cloud, 5), other.build_octree(cloud, 5)
+    assert all(np.array_equal(x.label, y.label) for x, y in zip(a.levels, b.levels))
