@@ -153,7 +153,8 @@ def _probe_tol(tol0: np.ndarray, boundary: np.ndarray) -> np.ndarray:
     Near the cube's boundary a probe sees samples on one side only: half the density, so gaps
     sqrt(2) times wider.  The factor fades in over one tolerance from the boundary.
     """
-    return tol0 * (np.sqrt(2.0) - (np.sqrt(2.0) - 1.0) * np.clip(boundary / tol0, 0.0, 1.0))
+    ratio = np.divide(boundary, tol0, out=np.ones_like(boundary), where=tol0 > 0)  # no gap: 0
+    return tol0 * (np.sqrt(2.0) - (np.sqrt(2.0) - 1.0) * np.clip(ratio, 0.0, 1.0))
 
 
 _MARGIN = 1.0 + 1e-9

@@ -46,7 +46,8 @@ def reference_patch_errors(pts, nrm, cfg, centre, normal, offset, size, start, c
     first = np.flatnonzero(np.r_[True, oct_id[1:] != oct_id[:-1]])
     n_probes = np.diff(np.r_[first, len(oct_id)])
     tol = np.repeat(cfg.gap * np.sqrt(np.log(100.0 * n_probes) / np.pi), n_probes)
-    tol *= np.sqrt(2.0) - (np.sqrt(2.0) - 1.0) * np.clip(edge_dist / tol, 0.0, 1.0)
+    ratio = np.divide(edge_dist, tol, out=np.ones_like(edge_dist), where=tol > 0)
+    tol *= np.sqrt(2.0) - (np.sqrt(2.0) - 1.0) * np.clip(ratio, 0.0, 1.0)
     bound = np.inf if exact else float(np.hypot(cfg.threshold, tol.max()))
     # every octant moved along x by 4 x its index: one tree, no query reaches another octant
     wanted = np.zeros(m, dtype=bool)

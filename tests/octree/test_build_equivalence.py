@@ -188,3 +188,19 @@ def test_probes_proved_covered_have_a_point_of_their_own_octant_within_tolerance
     assert len(grid_ok) > 0.1 * len(probes.grid) and len(edge_ok) > 0.1 * len(live)
     # and some probes are left for the k-d tree (sparse patches, small tolerances)
     assert len(grid_open) > 0 and len(edge_open) > 0
+
+
+def test_no_sampling_gap_gives_finite_errors_and_the_same_octree():
+    """A zero sample spacing (every gap tolerance 0) used to give NaN patch errors, read as
+    leaves: the tolerance's boundary factor divided 0 by 0."""
+    import warnings
+
+    cloud = holey_sphere(20_000, seed=6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        fast = build_octree(cloud, 6, sample_spacing=0.0)
+    for lv in fast.levels[fast.adaptive_depth:-1]:
+        measured = lv.label != 0
+        assert not np.isnan(lv.error[measured]).any()
+        assert np.all(lv.error[lv.label == 2] <= fast.threshold)
+    assert_same(fast, reference_build(cloud, 6, sample_spacing=0.0))
