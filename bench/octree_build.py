@@ -106,10 +106,19 @@ def import_ocnn() -> types.ModuleType:
 
 
 def sample_points(path: str, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Area-weighted surface samples of a mesh and the normals of the faces they lie on."""
-    mesh = trimesh.load(path, force="mesh")
-    points, face = trimesh.sample.sample_surface(mesh, n, seed=0)
+    """Area-weighted surface samples of a mesh file and the normals of the faces they lie on."""
+    return mesh_samples(trimesh.load(path, force="mesh"), n)
+
+
+def mesh_samples(mesh: trimesh.Trimesh, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Area-weighted surface samples of ``mesh`` and the normals of the faces they lie on."""
+    points, face = trimesh.sample.sample_surface(mesh, n, seed=seed)
     return np.asarray(points, dtype=np.float64), np.asarray(mesh.face_normals[face], dtype=np.float64)
+
+
+def mesh_files(mesh_dir: str) -> list[str]:
+    """The mesh file names in ``mesh_dir``, sorted."""
+    return sorted(f for f in os.listdir(mesh_dir) if f.endswith((".obj", ".off", ".stl", ".ply")))
 
 
 SNAP = 2.0 ** -21

@@ -27,6 +27,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 import model.octree.patch_error as patch_error
+from bench.octree_build import DEFAULT_MESH_DIR, mesh_files, mesh_samples
 from model.octree import LEAF, SPLIT, build_octree
 from model.octree.geometry import MAX_POLYGON, cube_polygons, patch_probes, polygon_distance
 from model.octree.octree import Octree
@@ -90,12 +91,11 @@ def dense_hausdorff(octree: Octree, depth: int, node: int, dense: np.ndarray) ->
 def label_changes(mesh_path: str, depth: int, points: int, dense: int) -> tuple[int, list[Change]]:
     """(octants of the new octree, changes between the two rules with their dense verdicts)."""
     mesh = trimesh.load(mesh_path, force="mesh")
-    pts, face = trimesh.sample.sample_surface(mesh, points, seed=0)
-    cloud = (np.asarray(pts), np.asarray(mesh.face_normals[face]))
+    cloud = mesh_samples(mesh, points)
     new = build_octree(cloud, depth, neighbors=False)
     with closing_edge_unprobed():
         old = build_octree(cloud, depth, neighbors=False)
-    dense_pts = new.normalizations[0].to_cube(trimesh.sample.sample_surface(mesh, dense, seed=1)[0])
+    dense_pts = new.normalizations[0].to_cube(mesh_samples(mesh, dense, seed=1)[0])
     changes = []
     for a, b in zip(old.levels, new.levels):
         common, ia, ib = np.intersect1d(a.key, b.key, return_indices=True)
@@ -107,8 +107,6 @@ def label_changes(mesh_path: str, depth: int, points: int, dense: int) -> tuple[
 
 
 def main(argv: list[str] | None = None) -> int:
-    from bench.octree_build import DEFAULT_MESH_DIR
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--meshes", nargs="*", default=None, help="file names in --mesh-dir (default all)")
     ap.add_argument("--mesh-dir", default=DEFAULT_MESH_DIR)
@@ -116,8 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--points", type=int, default=100_000)
     ap.add_argument("--dense", type=int, default=2_000_000)
     args = ap.parse_args(argv)
-    names = args.meshes or sorted(f for f in os.listdir(args.mesh_dir)
-                                  if f.endswith((".obj", ".off", ".stl", ".ply")))
+    names = args.meshes or mesh_files(args.mesh_dir)
     print(f"{'mesh':30s} depth  octants  changed  leaf->split  right  dense/threshold")
     total = wrong = 0
     for name in names:

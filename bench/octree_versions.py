@@ -23,7 +23,7 @@ import types
 
 import numpy as np
 
-from bench.octree_build import DEFAULT_MESH_DIR, sample_points
+from bench.octree_build import DEFAULT_MESH_DIR, mesh_files, sample_points
 from model.octree import build_octree
 
 
@@ -96,9 +96,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"octree_versions: no model/octree under {args.other}", file=sys.stderr)
         return 2
     other = load_other(args.other)
-    everything = sorted(f for f in os.listdir(args.mesh_dir) if f.endswith((".obj", ".off", ".stl", ".ply")))
     if args.equal:
-        return equality(other, args.meshes or everything, args.mesh_dir, args.previous_closing_edge)
+        return equality(other, args.meshes or mesh_files(args.mesh_dir), args.mesh_dir,
+                        args.previous_closing_edge)
     timing(other, args.meshes or ["stanford_bunny.obj", "abc3.stl", "homer.obj", "rocker_arm.obj"],
            args.mesh_dir, args.depth, args.repeats)
     return 0

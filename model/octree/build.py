@@ -8,8 +8,6 @@ patch error (:mod:`model.octree.patch_error`) are computed for all candidate oct
 
 from __future__ import annotations
 
-import time
-from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,8 +18,10 @@ from .errors import OctreeInputError
 from .geometry import fit_planes
 from .neighbors import build_neighbors
 from .octree import EMPTY, LEAF, PLANE_SCALE, SPLIT, Normalization, Octree, OctreeLevel
-from .patch_error import PatchErrorSettings, _ranges, patch_errors
+from .patch_error import PatchErrorSettings, patch_errors
 from .pointcloud import PointCloud, normalization_of, validate
+from .segments import concat_ranges, segment_sums
+from .timing import StageTimes
 
 DEFAULT_THRESHOLD = float(np.sqrt(3.0) / 2.0)
 """The paper's split threshold, in finest voxels: sqrt(3)/2 * h."""
@@ -38,20 +38,6 @@ class _Moments:
     start: np.ndarray        # (M,) first point (in sorted order)
     first_child: np.ndarray | None = None  # (M,) first non-empty child at depth+1
     n_children: np.ndarray | None = None   # (M,) number of non-empty children
-
-
-class _Timer:
-    """Accumulates wall time per named stage."""
-
-    def __init__(self, out: dict | None):
-        self.out = out
-
-    @contextmanager
-    def __call__(self, name: str):
-        t = time.perf_counter()
-        yield
-        if self.out is not None:
-            self.out[name] = self.out.get(name, 0.0) + time.perf_counter() - t
 
 
 def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth: int, *,
@@ -72,7 +58,7 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
     settling those the points binned on the patch grid prove covered (the same octree, slower).
     ``timings`` receives seconds per build stage.
     """
-    timer = _Timer(timings)
+    timer = StageTimes(timings)
     if not isinstance(depth, (int, np.integer)) or not 1 <= depth <= MAX_BUILD_DEPTH:
         raise OctreeInputError(f"depth must be an integer in [1, {MAX_BUILD_DEPTH}], got {depth!r}")
     if not 0 <= full_depth <= depth or adaptive_depth < full_depth:
@@ -205,44 +191,17 @@ def _aggregate(pts: np.ndarray, nrm: np.ndarray, key: np.ndarray, depth: int) ->
     count = np.diff(np.r_[starts, len(key)])
     levels: list[_Moments | None] = [None] * (depth + 1)
     levels[depth] = _Moments(key=key[starts], count=count,
-                             sums=_segment_sums(cols, new, len(starts)), start=starts)
+                             sums=segment_sums(cols, new, len(starts)), start=starts)
     for lv in range(depth - 1, -1, -1):
         fine = levels[lv + 1]
         pk = fine.key >> np.uint64(3)
         new = np.r_[True, pk[1:] != pk[:-1]]
         first = np.flatnonzero(new)
         levels[lv] = _Moments(key=pk[first], count=np.add.reduceat(fine.count, first),
-                              sums=_segment_sums(fine.sums, new, len(first)),
+                              sums=segment_sums(fine.sums, new, len(first)),
                               start=fine.start[first], first_child=first,
                               n_children=np.diff(np.r_[first, len(pk)]))
     return levels
-
-
-def _segment_sums(rows: np.ndarray, new: np.ndarray, n: int) -> np.ndarray:
-    """Sums (R, n) of each row over consecutive segments (``new`` marks each segment's start),
-    equal bit for bit to ``np.add.reduceat(rows, starts, axis=1)`` and faster on short segments.
-
-    reduceat adds a segment as ``x0 + (((0 + x1) + x2) + ...)`` when it has at most 8 elements
-    (longer ones are summed pairwise); ``bincount`` adds in order from 0, so the heads plus the
-    bincount of the tails give the same numbers.  Segments over 8 elements use reduceat itself.
-    The equality keeps planes, and with them every label and patch error, unchanged by this
-    speed-up: the patch error is not continuous in the plane where a polygon is degenerate.
-    """
-    starts = np.flatnonzero(new)
-    count = np.diff(np.r_[starts, rows.shape[1]])
-    long_ = np.flatnonzero(count > 8)
-    if count[long_].sum() * 2 > rows.shape[1]:      # mostly long segments (dense voxels)
-        return np.add.reduceat(rows, starts, axis=1)
-    tail = np.flatnonzero(~new)
-    st = (np.cumsum(new) - 1)[tail]
-    out = np.take(rows, starts, axis=1)
-    for r, row in enumerate(rows):           # row by row: no second copy of all rows
-        out[r] += np.bincount(st, weights=row[tail], minlength=n)
-    if len(long_):
-        idx = _ranges(starts[long_], count[long_])
-        out[:, long_] = np.add.reduceat(np.take(rows, idx, axis=1),
-                                        np.cumsum(count[long_]) - count[long_], axis=1)
-    return out
 
 
 def _children(node_key, node_ne, split_idx, mom: _Moments, fine: _Moments):
@@ -255,7 +214,7 @@ def _children(node_key, node_ne, split_idx, mom: _Moments, fine: _Moments):
     rank = np.flatnonzero(has)
     first = mom.first_child[parent_ne[has]]
     cnt = mom.n_children[parent_ne[has]]
-    j = _ranges(first, cnt)
+    j = concat_ranges(first, cnt)
     slot = (fine.key[j] & np.uint64(7)).astype(np.int64)
     child_ne[8 * np.repeat(rank, cnt) + slot] = j
     return child_key, child_ne

@@ -280,8 +280,7 @@ class PatchProbes:
         ends, out = [], []
         for axis in (self.u, self.v):
             ax = axis[self.edge_poly]
-            wa = self.edge_a[:, 0] * ax[:, 0] + self.edge_a[:, 1] * ax[:, 1] + self.edge_a[:, 2] * ax[:, 2]
-            wb = self.edge_b[:, 0] * ax[:, 0] + self.edge_b[:, 1] * ax[:, 1] + self.edge_b[:, 2] * ax[:, 2]
+            wa, wb = (np.einsum("ij,ij->i", end, ax) for end in (self.edge_a, self.edge_b))
             ends.append((wa, wb))
             out.append((wa[:, None] + t[None, :] * (wb - wa)[:, None]).ravel()[sel])
         (ua, ub), (va, vb) = ends

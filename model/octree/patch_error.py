@@ -16,6 +16,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .geometry import PatchProbes, boundary_distance, cube_polygons, patch_probes, polygon_distance
+from .segments import concat_ranges
+from .timing import StageTimes
 
 _SEPARATION = 4.0
 """Offset between octants in the per-depth k-d tree: larger than any distance inside the cube."""
@@ -48,13 +50,13 @@ def patch_errors(pts: np.ndarray, nrm: np.ndarray, cfg: PatchErrorSettings, cent
     within tol of a point read zero without a k-d tree query; the k-d tree would read zero for
     them too, so the values do not depend on it.
     """
-    timer = timer or _no_timer
+    timer = timer or StageTimes(None)
     m = len(normal)
     owner = np.repeat(np.arange(m), count)
     with timer("patch polygons"):
         verts, nvert = cube_polygons(normal, offset, size)
     with timer("error surface->patch"):
-        idx = _ranges(start, count)
+        idx = concat_ranges(start, count)
         whole = len(idx) == pts.shape[1]          # every point, in order: no gather needed
         nx, ny, nz, cx, cy, cz, off = (np.repeat(c, count) for c in (*normal.T, *centre.T, offset))
         local = [(pts[c] if whole else pts[c][idx]) - cc for c, cc in enumerate((cx, cy, cz))]
@@ -96,9 +98,9 @@ def patch_errors(pts: np.ndarray, nrm: np.ndarray, cfg: PatchErrorSettings, cent
     grid_open, edge_open = np.arange(len(grid_patch)), np.arange(len(edge_patch))
     # Cells about half the gap tolerance wide let a 5x5 window reach the points that cover a
     # probe; far denser clouds than the probe grid (tolerance below a quarter cell) skip this.
-    step = probes.g[1] - probes.g[0]
-    scale = 2.0 ** np.clip(np.round(np.log2(max(np.median(tol0), 1e-300) / (2.0 * step))), -2, 3)
-    if certify and np.median(tol0) >= 0.5 * step * scale:
+    step, typical = probes.g[1] - probes.g[0], float(np.median(tol0))
+    scale = 2.0 ** np.clip(np.round(np.log2(max(typical, 1e-300) / (2.0 * step))), -2, 3)
+    if certify and typical >= 0.5 * step * scale:
         with timer("probes on the patch grid"):
             bins = _PatchBins.of(probes, todo, owner, local, s, m, scale)
             grid_open, edge_open = _unsettled(probes, bins, tol0, edge_tol0, normal[todo], size)
@@ -284,26 +286,3 @@ def _nearest_in_octant(pts, idx, owner, query, oct_id, bound: float) -> np.ndarr
     q[:, 0] += oct_id * _SEPARATION
     tree = cKDTree(moved, leafsize=16, balanced_tree=False, compact_nodes=False)
     return tree.query(q, k=1, distance_upper_bound=bound)[0]   # one thread: builds run side by side
-
-
-def _ranges(start: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """Concatenation of ``arange(s, s + c)`` for all pairs, without a Python loop."""
-    total = int(count.sum())
-    if total == 0:
-        return np.zeros(0, dtype=np.int64)
-    offs = np.cumsum(count) - count
-    return np.repeat(start - offs, count) + np.arange(total)
-
-
-class _NoTimer:
-    def __call__(self, name: str):
-        return self
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
-
-
-_no_timer = _NoTimer()

@@ -9,6 +9,7 @@ import trimesh
 import model.octree.build as build_module
 from model.octree import build_octree
 from model.octree.geometry import plane_basis
+from model.octree.segments import segment_sums
 
 from .conftest import MESH_FILES, mesh_points, shared_mesh, sphere_points
 from .reference_error import reference_patch_errors
@@ -99,7 +100,7 @@ def test_segment_sums_equal_reduceat_bit_for_bit():
     new = np.zeros(lengths.sum(), dtype=bool)
     new[starts] = True
     rows = rng.normal(size=(12, len(new))) * rng.uniform(1e-3, 1e3, (12, 1))
-    got = build_module._segment_sums(rows, new, len(starts))
+    got = segment_sums(rows, new, len(starts))
     assert np.array_equal(got, np.add.reduceat(rows, starts, axis=1))
 
 
