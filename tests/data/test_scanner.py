@@ -9,7 +9,9 @@ from model.data.layouts import load_mesh
 from model.data.scanner import embree_available, scan, scan_detailed, scanner_directions
 from model.data.shapes import generate
 
-from ..shared import SHARED_MESHES as MESHES
+from ..meshes import mesh_names, mesh_path
+
+SOUPS = ["chair_soup.off", "airplane_soup.stl"] + [n for n in mesh_names() if n == "mn40_chair_0001.off"]
 
 
 def _assert_on_hit_faces(mesh, s, tol):
@@ -104,9 +106,9 @@ def test_generated_polygon_soup():
     assert (np.einsum("ij,ij->i", s.normals, scanner_directions()[s.view]) < 0).all()
 
 
-@pytest.mark.skipif(not MESHES.is_dir(), reason="shared meshes missing")
-def test_real_polygon_soup():
-    mesh = load_mesh(MESHES / "mn40_chair_0001.off")  # 1352 components, not watertight
+@pytest.mark.parametrize("name", SOUPS)
+def test_real_polygon_soup(name):
+    mesh = load_mesh(mesh_path(name))  # overlapping parts, not watertight as a whole
     s = scan_detailed(mesh, resolution=96)
     scale = float(np.linalg.norm(mesh.extents))
     _assert_on_hit_faces(mesh, s, 1e-5 * scale)

@@ -1,5 +1,5 @@
 """Small randomly initialised models of every exportable architecture, saved as checkpoint folders
-and exported once per test session; real octrees (shared meshes, procedural shapes) to run them on."""
+and exported once per test session; real octrees (test meshes, procedural shapes) to run them on."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from model.octree import build_octree
 from model.octree.batch import merge_octrees
 from model.train.loop import TrainConfig, build_model
 
-from ..octree.conftest import SHARED_MESHES, mesh_points
+from ..octree.conftest import mesh_path, mesh_points
 
 DEPTH = 5
 CONFIGS = {
@@ -97,13 +97,8 @@ def exported(tmp_path_factory):
 
 
 def _shape_clouds(n: int = 30_000) -> list[tuple[np.ndarray, np.ndarray]]:
-    clouds = []
-    for name in ("stanford_bunny.obj", "abc3.stl"):
-        path = f"{SHARED_MESHES}/{name}"
-        try:
-            clouds.append(mesh_points(trimesh.load(path, force="mesh"), n))
-        except (OSError, ValueError):
-            pass                                # the shared meshes are not on every machine
+    """Real inputs of different kinds: a sculpted shape, a CAD part and three generated categories."""
+    clouds = [mesh_points(trimesh.load(mesh_path(name), force="mesh"), n) for name in ("blob.obj", "cad_block.stl")]
     for category, index in (("chair", 0), ("airplane", 1), ("car", 2)):
         clouds.append(mesh_points(generate(category, index), n))
     return clouds

@@ -1,25 +1,13 @@
-"""Shared inputs for the octree tests: analytic shapes and the real meshes in ../shared/meshes."""
+"""Shared inputs for the octree tests: analytic shapes and the test meshes (:mod:`tests.meshes`)."""
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
-import pytest
 import trimesh
 
-from ..shared import SHARED_MESHES as SHARED
+from ..meshes import mesh_names, mesh_path  # noqa: F401  (the octree tests import it from here)
 
-SHARED_MESHES = str(SHARED)
-MESH_FILES = sorted(f for f in os.listdir(SHARED_MESHES)
-                    if f.endswith((".obj", ".off", ".stl", ".ply"))) if os.path.isdir(SHARED_MESHES) else []
-
-
-def shared_mesh(name: str) -> str:
-    path = os.path.join(SHARED_MESHES, name)
-    if not os.path.isfile(path):
-        pytest.skip(f"{path} is not available")
-    return path
+MESH_FILES = mesh_names()
 
 
 def sphere_points(n: int, radius: float = 1.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -33,9 +21,3 @@ def sphere_points(n: int, radius: float = 1.0, seed: int = 0) -> tuple[np.ndarra
 def mesh_points(mesh: trimesh.Trimesh, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     pts, fid = trimesh.sample.sample_surface(mesh, n, seed=seed)
     return pts, mesh.face_normals[fid]
-
-
-@pytest.fixture(scope="session")
-def bunny_points():
-    mesh = trimesh.load(shared_mesh("stanford_bunny.obj"), force="mesh")
-    return mesh_points(mesh, 150_000)

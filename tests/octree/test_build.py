@@ -7,7 +7,7 @@ from model.octree.geometry import cube_polygons
 from model.octree.inputs import load_input
 from model.octree.octree import PLANE_SCALE
 
-from .conftest import MESH_FILES, mesh_points, shared_mesh, sphere_points
+from .conftest import MESH_FILES, mesh_path, mesh_points, sphere_points
 
 
 def assert_structure(o, adaptive=True):
@@ -152,8 +152,8 @@ def test_sphere_leaves_are_within_the_threshold_of_the_true_sphere():
 
 
 @pytest.mark.parametrize("name", MESH_FILES)
-def test_every_shared_mesh_builds_with_leaf_errors_within_threshold(name):
-    loaded = load_input(shared_mesh(name), 6, n_points=60_000)
+def test_every_test_mesh_builds_with_leaf_errors_within_threshold(name):
+    loaded = load_input(mesh_path(name), 6, n_points=60_000)
     o = build_octree(loaded.cloud, 6, sample_spacing=loaded.sample_spacing, measure_leaves=True)
     assert_structure(o)
     # independent of the build's error code: every input point in a coarse leaf lies within the
@@ -176,17 +176,21 @@ def test_every_shared_mesh_builds_with_leaf_errors_within_threshold(name):
     assert full.nonempty_per_depth()[-1] >= o.nonempty_per_depth()[-1]
 
 
-@pytest.mark.parametrize("source", ["abc5.stl", "generated cabinet"])
-def test_errors_against_a_dense_mesh_reference_stay_near_the_threshold(source, tmp_path):
-    """Independent check on a CAD part (the shared one, and a generated one that exists wherever
-    the suite runs): patch vs 3M samples of the mesh clipped to each cube."""
+@pytest.mark.parametrize("source", ["cad_block.stl", "generated cabinet"])
+@pytest.mark.parametrize("points", [None, 400_000])
+def test_errors_against_a_dense_mesh_reference_stay_near_the_threshold(source, points, tmp_path):
+    """Independent check on CAD parts (a machined block, and a generated cabinet): patch vs 3M
+    samples of the mesh clipped to each cube.  With the default sampling 99% of the leaves are
+    within the threshold; the rest hold slivers (a hole's wall clipping an octant's corner, ~3%
+    of its area) that no sample fell on: the block's worst is 1.53x.  Sampled 4.6x more densely,
+    every leaf is within 1.25x."""
     if source.startswith("generated"):
         from model.data.shapes import generate
         path = str(tmp_path / "cabinet.stl")
         generate("cabinet", 2).export(path)
     else:
-        path = shared_mesh(source)
-    loaded = load_input(path, 6)
+        path = mesh_path(source)
+    loaded = load_input(path, 6, n_points=points)
     o = build_octree(loaded.cloud, 6, sample_spacing=loaded.sample_spacing, neighbors=False)
     mesh = trimesh.load(path, force="mesh")
     dense = o.normalizations[0].to_cube(trimesh.sample.sample_surface(mesh, 3_000_000, seed=4)[0])
@@ -206,7 +210,7 @@ def test_errors_against_a_dense_mesh_reference_stay_near_the_threshold(source, t
     ratios = np.concatenate(ratios)
     assert len(ratios) > 100
     assert np.quantile(ratios, 0.99) <= 1.0
-    assert ratios.max() <= 1.25
+    assert ratios.max() <= (1.25 if points else 1.6)
 
 
 def test_full_octree_splits_every_nonempty_octant():

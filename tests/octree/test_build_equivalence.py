@@ -11,7 +11,7 @@ from model.octree import build_octree
 from model.octree.geometry import plane_basis
 from model.octree.segments import segment_sums
 
-from .conftest import MESH_FILES, mesh_points, shared_mesh, sphere_points
+from .conftest import MESH_FILES, mesh_path, mesh_points, sphere_points
 from .reference_error import reference_patch_errors
 
 TOLERANCE = 1e-9
@@ -85,8 +85,8 @@ def test_fast_build_matches_with_leaf_measurement_and_other_settings():
 
 
 @pytest.mark.parametrize("name", MESH_FILES)
-def test_fast_build_matches_the_plain_formulation_on_every_shared_mesh(name):
-    mesh = trimesh.load(shared_mesh(name), force="mesh")
+def test_fast_build_matches_the_plain_formulation_on_every_test_mesh(name):
+    mesh = trimesh.load(mesh_path(name), force="mesh")
     cloud = mesh_points(mesh, 30_000, seed=0)
     for depth in (6, 7, 8):
         assert_same(build_octree(cloud, depth), reference_build(cloud, depth))

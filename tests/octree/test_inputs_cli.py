@@ -11,7 +11,7 @@ from model.octree import OctreeInputError, estimate_normals
 from model.octree.__main__ import main
 from model.octree.inputs import load_input
 
-from .conftest import shared_mesh, sphere_points
+from .conftest import mesh_path, sphere_points
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -62,7 +62,7 @@ def test_points_without_normals_get_consistent_outward_normals(tmp_path):
 
 
 def test_meshes_are_sampled_densely_enough_for_the_depth():
-    path = shared_mesh("mn40_chair_0002.off")
+    path = mesh_path("chair_soup.off")
     a = load_input(path, 5)
     b = load_input(path, 6)
     assert a.kind == "mesh" and b.sample_spacing < a.sample_spacing
@@ -112,7 +112,7 @@ def test_bad_files_raise_one_clear_error(tmp_path, content, ext, msg):
 
 
 def test_cli_writes_mesh_and_stats_in_input_coordinates(tmp_path):
-    src = shared_mesh("mn40_chair_0002.off")
+    src = mesh_path("chair_soup.off")
     out, stats = tmp_path / "chair.glb", tmp_path / "stats.json"
     assert main([src, "--depth", "6", "--out", str(out), "--stats", str(stats), "--color-by-depth"]) == 0
     s = json.loads(stats.read_text())
@@ -144,7 +144,7 @@ def test_cli_writes_mesh_and_stats_in_input_coordinates(tmp_path):
     (["{mesh}", "--depth", "5", "--points", "2", "--out", "{tmp}/o.ply"], "--points"),
 ])
 def test_cli_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, args, msg):
-    mesh = shared_mesh("mn40_chair_0002.off")
+    mesh = mesh_path("chair_soup.off")
     argv = [a.format(tmp=tmp_path, mesh=mesh) for a in args]
     proc = subprocess.run([sys.executable, "-m", "model.octree", *argv], cwd=REPO,
                           capture_output=True, text=True, timeout=120)

@@ -5,7 +5,7 @@ from model.octree import build_octree, keys
 from model.octree.batch import merge_octrees
 from model.octree.neighbors import CENTER
 
-from .conftest import mesh_points, shared_mesh, sphere_points
+from .conftest import mesh_path, mesh_points, sphere_points
 
 
 def neighbors_by_key_search(level) -> np.ndarray:
@@ -36,7 +36,7 @@ def test_neighbor_tables_match_key_search_at_every_depth():
 def test_batched_tables_equal_per_shape_tables_offset_and_never_cross_shapes():
     box = trimesh.creation.box(extents=(1.0, 0.5, 0.3))
     shapes = [sphere_points(20_000), mesh_points(box, 20_000),
-              mesh_points(trimesh.load(shared_mesh("mn40_chair_0002.off"), force="mesh"), 20_000)]
+              mesh_points(trimesh.load(mesh_path("chair_soup.off"), force="mesh"), 20_000)]
     singles = [build_octree(s, 6, adaptive=(i != 1)) for i, s in enumerate(shapes)]
     merged = merge_octrees(singles)
     assert merged.batch_size == 3
