@@ -13,8 +13,11 @@ from fastapi.middleware.cors import CORSMiddleware
 from . import errors
 from .engine import Engine
 from .limits import BodyLimit
-from .routers import demo, health, models, shapes
+from .routers import apidocs, demo, health, models, shapes
 from .settings import Settings
+
+ROUTERS = (shapes.router, models.router, health.router, demo.router, apidocs.router)
+"""Every router of the app, in the order they match."""
 
 
 def create_app(settings: Settings | None = None, engine: Engine | None = None) -> FastAPI:
@@ -32,13 +35,13 @@ def create_app(settings: Settings | None = None, engine: Engine | None = None) -
         yield
         eng.limiter.close()
 
-    app = FastAPI(title="Adaptive O-CNN", version="1", lifespan=lifespan,
+    app = FastAPI(title="Adaptive O-CNN", version="1", lifespan=lifespan, docs_url=None, redoc_url=None,
                   description="A photo or a partial scan in, a patch mesh out (Adaptive O-CNN, onnxruntime). "
                               "Errors are JSON: {\"error\": {\"code\", \"message\", \"hint\"}}.")
     if engine is not None:
         app.state.engine = engine                               # usable without the lifespan (ASGI test tools)
     errors.install(app)
-    for r in (shapes.router, models.router, health.router, demo.router):
+    for r in ROUTERS:
         app.include_router(r)
     if settings.origins():
         app.add_middleware(CORSMiddleware, allow_origins=settings.origins(), allow_methods=["GET", "POST"],

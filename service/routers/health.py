@@ -14,14 +14,15 @@ router = APIRouter(tags=["health"])
 
 
 @router.get("/healthz", response_model=Health, summary="Live: the process answers")
-@router.get("/v2/health/live", response_model=Health, include_in_schema=False)
+@router.get("/v2/health/live", response_model=Health, summary="Live (Open Inference Protocol path)")
 async def live() -> Health:
     return Health()
 
 
 @router.get("/readyz", response_model=Readiness, responses={503: {"model": Readiness}},
             summary="Ready: every bundle loaded, verified and warmed up")
-@router.get("/v2/health/ready", response_model=Readiness, responses={503: {"model": Readiness}}, include_in_schema=False)
+@router.get("/v2/health/ready", response_model=Readiness, responses={503: {"model": Readiness}},
+            summary="Ready (Open Inference Protocol path)")
 async def ready(eng: Engine = Depends(engine)):
     body = Readiness(ready=eng.ready, models=sorted(eng.models))
     return body if eng.ready else JSONResponse(body.model_dump(), status_code=503)

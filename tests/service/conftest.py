@@ -1,10 +1,14 @@
 """A service over small random-weight bundles of every served task: image-to-shape, completion
-and classification."""
+and classification; the same app on a real port, and headless Chromium for the browser tests."""
 
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import socket
+import threading
+import time
 
 import pytest
 from fastapi.testclient import TestClient
@@ -36,3 +40,48 @@ def make_client(models_dir, **settings) -> TestClient:
 def client(models_dir):
     with make_client(models_dir) as c:
         yield c
+
+
+KEY = "browser-test-key"
+LAUNCH_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox"]
+
+
+def chromium_executable() -> str | None:
+    candidates = [os.environ.get("PLAYWRIGHT_CHROMIUM"), "/usr/bin/chromium", shutil.which("chromium"),
+                  shutil.which("chromium-browser")]
+    return next((c for c in candidates if c and os.access(c, os.X_OK)), None)
+
+
+@pytest.fixture(scope="session")
+def browser():
+    """Headless Chromium driven by playwright (the dev extra); skipped where no Chromium is installed."""
+    exe = chromium_executable()
+    if exe is None:
+        pytest.skip("no Chromium browser: install it (apt-get install chromium) or set PLAYWRIGHT_CHROMIUM")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=exe, args=LAUNCH_ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture(scope="session")
+def server(models_dir):
+    """The app on a free port (uvicorn in a thread), with an API key required on /v1."""
+    import uvicorn
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    app = create_app(Settings(models_dir=models_dir, api_keys=KEY))
+    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=srv.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 120
+    while not srv.started:
+        assert thread.is_alive() and time.monotonic() < deadline, "the server did not start"
+        time.sleep(0.1)
+    yield f"http://127.0.0.1:{port}/"
+    srv.should_exit = True
+    thread.join(30)

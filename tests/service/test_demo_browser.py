@@ -8,61 +8,9 @@ chromium or chromium-browser on PATH): ``apt-get install chromium`` and ``pip in
 
 from __future__ import annotations
 
-import os
-import shutil
-import socket
-import threading
-import time
 from pathlib import Path
 
-import pytest
-
-from service.app import create_app
-from service.settings import Settings
-
-KEY = "browser-test-key"
-LAUNCH_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox"]
-
-
-def chromium_executable() -> str | None:
-    candidates = [os.environ.get("PLAYWRIGHT_CHROMIUM"), "/usr/bin/chromium", shutil.which("chromium"),
-                  shutil.which("chromium-browser")]
-    return next((c for c in candidates if c and os.access(c, os.X_OK)), None)
-
-
-@pytest.fixture(scope="module")
-def browser():
-    exe = chromium_executable()
-    if exe is None:
-        pytest.skip("no Chromium executable (set PLAYWRIGHT_CHROMIUM, or apt-get install chromium)")
-    from playwright.sync_api import sync_playwright     # the dev extra; not a reason to skip
-
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=exe, args=LAUNCH_ARGS)
-        yield b
-        b.close()
-
-
-@pytest.fixture(scope="module")
-def server(models_dir):
-    """The app on a free port (uvicorn in a thread), with an API key required on /v1."""
-    import uvicorn
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    app = create_app(Settings(models_dir=models_dir, api_keys=KEY))
-    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
-    thread = threading.Thread(target=srv.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 120
-    while not srv.started:
-        assert thread.is_alive() and time.monotonic() < deadline, "the server did not start"
-        time.sleep(0.1)
-    yield f"http://127.0.0.1:{port}/"
-    srv.should_exit = True
-    thread.join(30)
-
+from .conftest import KEY
 
 def run_example(page, name: str, timeout_ms: int = 120_000) -> dict:
     """Choose a bundled example, press Run and wait for the viewer (or an error)."""
