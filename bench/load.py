@@ -1,4 +1,4 @@
-"""Load test of the service: uvicorn on 127.0.0.1, an asyncio httpx client, fixed duration.
+"""Load test of the service: uvicorn on 127.0.0.1, an asyncio httpx2 client, fixed duration.
 
 Starts ``python -m service`` on a free port (the bundled models unless ``--models-dir``), waits
 for /readyz, then for each concurrency level keeps that many requests in flight for
@@ -23,7 +23,7 @@ import sys
 import time
 from pathlib import Path
 
-import httpx
+import httpx2 as httpx
 
 FIELDS = {"image-to-shape": "image", "complete": "points", "octree": "shape", "classify": "shape"}
 TARGET_OUTSIDE = 0.15

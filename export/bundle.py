@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from model.files import sha256_file
+from model.octree.build import MAX_BUILD_DEPTH
 from model.preprocess import ImageSpec
 
 BUNDLE_FORMAT = 1
@@ -142,8 +143,8 @@ def parse_manifest(meta: dict, path: Path) -> Bundle:
                         adaptive_depth=_get(o, "adaptive_depth", int, ow), adaptive=_get(o, "adaptive", bool, ow),
                         classes=classes, planes=tuple(_get(o, "planes", list, ow)), latent=_get(o, "latent", int, ow),
                         threshold=None if threshold is None else float(threshold), signal=o.get("signal", "all"))
-    if not 0 <= octree.full_depth <= octree.adaptive_depth <= octree.depth <= 12:
-        raise BundleError(f"{ow}: need 0 <= full_depth <= adaptive_depth <= depth <= 12")
+    if not 0 <= octree.full_depth <= octree.adaptive_depth <= octree.depth <= MAX_BUILD_DEPTH:
+        raise BundleError(f"{ow}: need 0 <= full_depth <= adaptive_depth <= depth <= {MAX_BUILD_DEPTH}")
     if threshold is not None and not (isinstance(threshold, (int, float)) and math.isfinite(threshold) and threshold > 0):
         raise BundleError(f"{ow}: threshold must be a positive number")
     graphs = {}

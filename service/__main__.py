@@ -10,20 +10,32 @@ def main(argv: list[str] | None = None) -> int:
 
     import uvicorn
 
-    from .engine import StartupError
-    from .settings import Settings
+    from pydantic import ValidationError
 
-    ap = argparse.ArgumentParser(prog="python -m service", description=__doc__.splitlines()[0])
+    from .engine import StartupError
+    from .settings import Settings, describe_error, settings_table
+
+    ap = argparse.ArgumentParser(
+        prog="python -m service", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Run the Adaptive O-CNN inference service (FastAPI + onnxruntime, no torch) with the bundles "
+                    "of a models folder. Every setting is an AOCNN_* environment variable (--settings lists "
+                    "them); the options below override three of them.",
+        epilog="example:\n  AOCNN_CONCURRENCY=1 AOCNN_THREADS=2 python -m service --port 9000\n"
+               "  then open http://127.0.0.1:9000/ (the demo page) or /docs (the API)")
     ap.add_argument("--host", default=None, help="bind address (default AOCNN_HOST or 127.0.0.1)")
     ap.add_argument("--port", type=int, default=None, help="port (default AOCNN_PORT or 8000)")
     ap.add_argument("--models-dir", default=None, help="bundles folder (default AOCNN_MODELS_DIR or models/bundles)")
+    ap.add_argument("--settings", action="store_true", help="print the table of AOCNN_* settings and exit")
     args = ap.parse_args(argv)
-    overrides = {k: v for k, v in {"host": args.host, "port": args.port, "models_dir": args.models_dir}.items()
-                 if v is not None}
+    if args.settings:
+        print(settings_table(), end="")
+        return 0
+    given = {"host": args.host, "port": args.port, "models_dir": args.models_dir}
+    overrides = {k: v for k, v in given.items() if v is not None}
     try:
         settings = Settings(**overrides)
-    except ValueError as exc:                       # pydantic's ValidationError: a bad AOCNN_* value
-        print(f"error: {' '.join(str(exc).split())}", file=sys.stderr)
+    except ValidationError as exc:                  # a bad AOCNN_* value or option
+        print(f"error: {describe_error(exc, {k: '--' + k.replace('_', '-') for k in overrides})}", file=sys.stderr)
         return 2
     from .app import create_app
     from .engine import Engine

@@ -247,10 +247,9 @@ class Engine:
                     out[i] = exc
         return out
 
-    def classify(self, data: bytes, filename: str | None, top_k: int, vote: bool,
-                 timer: StageTimer) -> list[tuple[str, float]]:
-        """A shape's ``top_k`` categories with probabilities; ``vote`` averages them over the 12
-        rotations about the bundle's up axis (the paper's test-time vote, 12x the work)."""
+    def classify(self, data: bytes, filename: str | None, vote: bool, timer: StageTimer) -> np.ndarray:
+        """Class probabilities (R, C) of a shape at R rotations about the bundle's up axis: 12 with
+        ``vote`` (the paper's test-time vote, 12x the work), else 1."""
         served = self.model("classify")
         b = served.bundle
         o = b.octree
@@ -266,9 +265,7 @@ class Engine:
                                   **({"threshold": o.threshold} if o.threshold else {}))
                      for r in rotations]
         with timer("encoder"):
-            probs = served.runtime.classify(served.runtime.encode_octree(merge_octrees(trees))).mean(0)
-        order = np.argsort(-probs, kind="stable")[:top_k]
-        return [(b.categories[i], min(1.0, max(0.0, float(probs[i])))) for i in order]
+            return served.runtime.classify(served.runtime.encode_octree(merge_octrees(trees)))
 
     def octree(self, data: bytes, filename: str | None, depth: int, threshold: float | None, full: bool, fmt: str,
                color: bool, timer: StageTimer) -> MeshFile:

@@ -1,7 +1,8 @@
 """Uploaded inputs to arrays, with limits: images through the shared preprocessing, point clouds
-and meshes through the octree core's loader.  Formats are sniffed from the bytes (a lying
-Content-Type or file name changes nothing); pickled arrays are never unpickled; temporary files
-are removed whatever happens.
+and meshes through the octree core's loader.  Formats are recognised from the bytes
+(:func:`model.formats.identify`: a lying Content-Type or file name changes nothing, and a file of
+a kind the endpoint does not take is named in its 415); pickled arrays are never unpickled;
+temporary files are removed whatever happens.
 """
 
 from __future__ import annotations
@@ -14,18 +15,20 @@ from pathlib import Path
 
 import numpy as np
 
+from model.formats import IMAGE_FORMATS, MESH_FORMATS, POINT_FORMATS, identify, not_taken
 from model.octree import OctreeInputError
 from model.octree.inputs import HEADER_BYTES, LoadedInput, load_input, ply_vertex_count
 from model.preprocess import ImageError, ImageSpec, decode_image, prepare_image
 
 from .errors import APIError
 
-POINT_FORMATS = ("ply", "xyz", "txt", "npy", "npz", "obj")
-MESH_FORMATS = ("obj", "off", "stl", "glb", "gltf", "ply")
+POINTS_TAKEN = f"this endpoint takes a point cloud ({POINT_FORMATS})"
+SHAPES_TAKEN = f"this endpoint takes a mesh ({MESH_FORMATS}) or a point cloud ({POINT_FORMATS})"
+IMAGES_TAKEN = f"this endpoint takes an image ({IMAGE_FORMATS})"
 
 
 def image_input(data: bytes, spec: ImageSpec, max_pixels: int) -> np.ndarray:
-    """Encoder input (3, S, S) of an uploaded image, or a 4xx."""
+    """Encoder input (3, S, S) of an uploaded image, or a 4xx (415 naming what else it is)."""
     if not data:
         raise APIError(400, "empty_input", "the 'image' field is empty", "upload the image file's bytes")
     try:
@@ -35,35 +38,11 @@ def image_input(data: bytes, spec: ImageSpec, max_pixels: int) -> np.ndarray:
         if "more than the limit" in message:
             raise APIError(413, "image_too_large", message, "send a smaller image (downscale it)") from None
         if "not an image" in message:
-            raise APIError(415, "unsupported_image", message, "send PNG, JPEG, WebP, GIF, BMP or TIFF") from None
+            kind = identify(data)
+            what = (f"this is {kind.name} that Pillow cannot decode; {IMAGES_TAKEN}" if kind.family == "image"
+                    else not_taken(kind, IMAGES_TAKEN))
+            raise APIError(415, "unsupported_image", what, "send a photo of one object as PNG or JPEG") from None
         raise APIError(400, "invalid_image", message, "send a complete, readable photo of one object") from None
-
-
-def sniff(data: bytes, filename: str | None) -> str:
-    """The file format of uploaded shape bytes: from magic numbers first, then text content,
-    the file name's extension only where the bytes cannot tell (OFF/STL/glTF/OBJ)."""
-    head = data[:512]
-    if head.startswith(b"\x93NUMPY"):
-        return "npy"
-    if head.startswith(b"PK\x03\x04"):
-        return "npz"
-    if head.startswith(b"ply"):
-        return "ply"
-    if head.startswith(b"glTF"):
-        return "glb"
-    ext = Path(filename or "").suffix.lower().lstrip(".")
-    text = head.lstrip()
-    if text.startswith(b"OFF"):
-        return "off"
-    if len(data) >= 84 and 84 + 50 * int.from_bytes(data[80:84], "little") == len(data):
-        return "stl"                                     # binary STL: its size is fixed by its count
-    if text.startswith(b"solid") or ext == "stl":
-        return "stl"
-    if text.startswith(b"{") and (ext == "gltf" or b'"asset"' in data[:65536]):
-        return "gltf"
-    if re.search(rb"^\s*(v|vn|f|o|g|mtllib)\s", head, re.M) and not re.match(rb"^\s*[-+.\d]", text):
-        return "obj"
-    return "xyz"
 
 
 def _check_size(data: bytes, fmt: str, max_points: int, max_npz_bytes: int) -> None:
@@ -90,10 +69,16 @@ def _check_size(data: bytes, fmt: str, max_points: int, max_npz_bytes: int) -> N
 
 def shape_input(data: bytes, filename: str | None, depth: int, max_points: int, max_npz_bytes: int,
                 field: str = "points") -> LoadedInput:
-    """Oriented points of an uploaded point cloud or mesh (normals estimated when absent), or a 4xx."""
+    """Oriented points of an uploaded point cloud (field ``points``) or mesh or point cloud (field
+    ``shape``), normals estimated when absent, or a 4xx: 415 for a kind of file the endpoint does
+    not take, 413 over a limit, 400 for a taken kind that is malformed or unusable."""
     if not data:
         raise APIError(400, "empty_input", f"the '{field}' field is empty", "upload the file's bytes")
-    fmt = sniff(data, filename)
+    kind = identify(data, filename)
+    takes = POINTS_TAKEN if field == "points" else SHAPES_TAKEN
+    if kind.loader is None:
+        raise APIError(415, "unsupported_format", not_taken(kind, takes), "convert it to one of those formats")
+    fmt = kind.loader
     _check_size(data, fmt, max_points, max_npz_bytes)
     with tempfile.TemporaryDirectory(prefix="aocnn-") as tmp:
         path = Path(tmp) / f"upload.{fmt}"
@@ -102,9 +87,7 @@ def shape_input(data: bytes, filename: str | None, depth: int, max_points: int, 
             loaded = load_input(str(path), depth)
         except OctreeInputError as exc:
             message = str(exc).replace(str(path), f"the {fmt.upper()} upload").replace(tmp, "the upload folder")
-            raise APIError(400, "invalid_points", message,
-                           "send a point cloud (PLY, XYZ/TXT, NPY, NPZ, OBJ vertices) or a mesh with real "
-                           "coordinates") from None
+            raise APIError(400, "invalid_points", message, f"{takes[5:]}, with real coordinates") from None
     n = len(loaded.cloud.points)
     if loaded.kind == "points" and n > max_points:
         raise APIError(413, "too_many_points", f"the upload has {n:,} points, more than the limit of {max_points:,}",

@@ -43,10 +43,15 @@ class Readiness(BaseModel):
 
 class ClassScore(BaseModel):
     category: str
-    probability: float = Field(ge=0, le=1)
+    probability: float = Field(ge=0, le=1, description="the softmax probability; with vote=true, its mean over the "
+                               "12 rotations (lower than a single view's when the rotations disagree)")
+    votes: int = Field(ge=0, description="how many of the rotations rank this category first (1 or 0 without "
+                       "the vote)")
 
 
 class ClassifyResponse(BaseModel):
     model: str
     version: str
+    rotations: int = Field(description="the rotations about the up axis the answer averages: 12 with vote=true, "
+                           "else 1", examples=[12])
     top: list[ClassScore]

@@ -20,6 +20,7 @@ import os
 import sys
 import time
 
+from ..octree.build import MAX_BUILD_DEPTH
 from .dataset import SOURCES, BuildConfig, Shard, build_dataset, layout_tasks, merge_shards, procedural_tasks
 from .shapes import CATEGORIES
 
@@ -58,8 +59,8 @@ def run(args: argparse.Namespace) -> dict:
     if args.command == "merge":
         return merge_shards(args.out, args.shards)
     shard = Shard.parse(args.shard) if args.shard else None
-    if not 2 <= args.depth <= 10:
-        raise ValueError(f"--depth must be in 2..10, got {args.depth}")
+    if not 2 <= args.depth <= MAX_BUILD_DEPTH:
+        raise ValueError(f"--depth must be in 2..{MAX_BUILD_DEPTH}, got {args.depth}")
     if args.per_category is not None and args.per_category < 1:
         raise ValueError(f"--per-category must be at least 1, got {args.per_category}")
     for name in ("workers", "views", "render_size", "scan_resolution"):

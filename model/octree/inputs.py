@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..formats import MESH_FORMATS, POINT_FORMATS, identify, not_taken
 from .errors import OctreeInputError
 from .pointcloud import CUBE_FILL, PointCloud, validate
 
@@ -48,6 +49,10 @@ def load_input(path: str, depth: int, n_points: int | None = None, seed: int = 0
             f"cloud ({', '.join(POINT_EXTENSIONS)})")
     if n_points is not None and n_points < 3:
         raise OctreeInputError(f"--points must be at least 3, got {n_points}")
+    with open(path, "rb") as fh:
+        kind = identify(fh.read(HEADER_BYTES))
+    if kind.known and kind.loader is None:
+        raise OctreeInputError(f"{path}: {not_taken(kind, f'a mesh ({MESH_FORMATS}) or a point cloud ({POINT_FORMATS}) is needed')}")
     if ext in (".xyz", ".txt", ".pts"):
         return _points(_read_text(path), path)
     if ext == ".npy":
@@ -109,13 +114,23 @@ def _read_npz(path: str) -> LoadedInput:
     if pkey is None:
         raise OctreeInputError(f"{path}: needs an array named 'points' (found {names})")
     nkey = next((k for k in ("normals", "normal", "nrm") if k in names), None)
-    pts = _real(np.asarray(data[pkey]), path, f"'{pkey}'")
+    pts = _member(data, pkey, path)
     if nkey is None:
         return _points(pts, path)
-    nrm = _real(np.asarray(data[nkey]), path, f"'{nkey}'")
+    nrm = _member(data, nkey, path)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise OctreeInputError(f"{path}: '{pkey}' must be (N, 3), got {pts.shape}")
     return LoadedInput(validate(pts, nrm), "points", None, False)
+
+
+def _member(archive, name: str, path: str) -> np.ndarray:
+    """One array of an NPZ archive as float64 (members are read, and refused, only when asked for:
+    an object array is never unpickled)."""
+    try:
+        arr = np.asarray(archive[name])
+    except (ValueError, OSError, EOFError) as exc:
+        raise OctreeInputError(f"{path}: '{name}' is not a readable array ({exc})") from None
+    return _real(arr, path, f"'{name}'")
 
 
 def _read_trimesh(path: str, depth: int, n_points: int | None, seed: int) -> LoadedInput:

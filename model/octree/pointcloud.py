@@ -28,26 +28,35 @@ class PointCloud:
         return len(self.points)
 
 
+LINE_TOLERANCE = 1e-4
+"""A cloud whose spread across its main direction is below this share of its spread along it is a
+line (or a point): thinner than a finest voxel at any depth the build allows, and what rounding
+leaves of points on a line (6 significant digits put them ~1e-6 off it).  A plane is legitimate."""
+
+
 def validate(points: np.ndarray, normals: np.ndarray | None) -> PointCloud:
-    """Check shapes and values, normalise normals; raise :class:`OctreeInputError` if unusable."""
+    """Check shapes and values, normalise normals; raise :class:`OctreeInputError` if unusable:
+    NaN or infinite values, fewer than 3 points, or points that all lie on a line or at one spot
+    within rounding (decided on the singular values of the centred cloud, :data:`LINE_TOLERANCE`)."""
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise OctreeInputError(f"points must be an (N, 3) array, got shape {pts.shape}")
-    if len(pts) < 3:
-        raise OctreeInputError(f"need at least 3 points to fit a plane, got {len(pts)}")
     if not np.isfinite(pts).all():
         bad = ~np.isfinite(pts).all(1)
         raise OctreeInputError(
             f"{int(bad.sum())} point(s) have NaN or infinite coordinates (first at row "
             f"{int(np.flatnonzero(bad)[0])}); remove them")
+    if len(pts) < 3:
+        raise OctreeInputError(f"need at least 3 points to fit a plane, got {len(pts)}")
     lo, hi = bounding_box(pts)
-    if (hi - lo).max() <= 0:
+    if (hi - lo).max() <= 1e-12 * max(1.0, float(np.abs(pts).max())):
         raise OctreeInputError("all points are identical; a surface needs points spread in space")
     sub = pts[:: max(1, len(pts) // 20000)]
-    sub = sub - sub.mean(0)
-    ev = np.linalg.eigvalsh(sub.T @ sub)
-    if ev[1] <= 1e-12 * ev[2]:           # spread across the line below 1e-6 of its length
-        raise OctreeInputError("all points are collinear; a surface needs points spread in 2 dimensions")
+    spread = np.linalg.svd(sub - sub.mean(0), compute_uv=False)
+    if spread[1] <= LINE_TOLERANCE * spread[0]:
+        raise OctreeInputError(
+            f"all points lie on a line (their spread across it is {spread[1] / spread[0]:.1e} of their spread "
+            "along it); a surface needs points spread in 2 dimensions")
     if normals is None:
         return PointCloud(pts, estimate_normals(pts))
     nrm = np.asarray(normals, dtype=np.float64)

@@ -162,13 +162,15 @@ function showHeaders(response) {
 
 function showClasses(result) {
   const box = $('classes');
+  const voted = result.rotations > 1;   // probabilities are means over the rotations; votes count first places
   const rows = result.top.map((c) => {
     const pct = (100 * c.probability).toFixed(1);
-    return `<tr><td>${escapeHtml(c.category)}</td><td>${pct}%</td>`
+    return `<tr><td>${escapeHtml(c.category)}</td><td>${pct}%</td>${voted ? `<td>${c.votes}</td>` : ''}`
       + `<td><span class="bar" style="width:${Math.round(2 * pct)}px"></span></td></tr>`;
   }).join('');
+  const votes = voted ? `<th>votes of ${result.rotations}</th>` : '';
   box.innerHTML = `<table><caption>${escapeHtml(result.model)} ${escapeHtml(result.version)}</caption>`
-    + `<tr><th>category</th><th>probability</th><th></th></tr>${rows}</table>`;
+    + `<tr><th>category</th><th>probability</th>${votes}<th></th></tr>${rows}</table>`;
   box.hidden = false;
 }
 

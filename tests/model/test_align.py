@@ -38,3 +38,24 @@ def test_icp_recovers_a_known_transform_of_a_sampled_shape(category):
 def test_icp_rejects_too_few_points():
     with pytest.raises(ValueError, match="at least 3"):
         icp(np.zeros((2, 3)), np.zeros((10, 3)))
+
+
+def test_icp_composes_its_steps_as_kabsch_fits_applied_in_order():
+    """Four iterations (no early stop) equal four nearest-neighbour Kabsch fits composed by hand:
+    the transform is the last fit after the earlier ones, ``r4 r3 r2 r1``; rotations do not
+    commute, so another order lands elsewhere."""
+    from scipy.spatial import cKDTree
+
+    mesh = generate("chair", 1)
+    target = mesh.sample(3000, seed=1)
+    rot = Rotation.from_euler("xyz", [25, -15, 20], degrees=True).as_matrix()
+    source = mesh.sample(1500, seed=2) @ rot.T + [0.05, -0.02, 0.03]
+    a = icp(source, target, iterations=4, tolerance=-1.0)
+    tree, moved, total = cKDTree(target), source.copy(), np.eye(3)
+    for _ in range(4):
+        _, idx = tree.query(moved)
+        r, t = rigid_fit(moved, target[idx])
+        moved, total = moved @ r.T + t, r @ total
+    assert a.iterations == 4
+    assert np.allclose(a.apply(source), moved, atol=1e-9)
+    assert np.allclose(a.rotation, total, atol=1e-12)

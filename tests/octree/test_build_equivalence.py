@@ -205,3 +205,24 @@ def test_no_sampling_gap_gives_finite_errors_and_the_same_octree():
         assert not np.isnan(lv.error[measured]).any()
         assert np.all(lv.error[lv.label == 2] <= fast.threshold)
     assert_same(fast, reference_build(cloud, 6, sample_spacing=0.0))
+
+
+def test_an_error_exactly_at_the_threshold_does_not_split(monkeypatch):
+    """The paper's rule: an octant splits iff delta_O > delta hat.  Errors are set to exactly the
+    threshold for every other octant and to the next float above it for the rest."""
+    seen = []
+
+    def errors_at_the_boundary(pts, nrm, settings, centre, *args, **kwargs):
+        err = np.full(len(centre), settings.threshold)
+        err[1::2] = np.nextafter(settings.threshold, np.inf)
+        seen.append(err)
+        return err
+
+    monkeypatch.setattr(build_module, "patch_errors", errors_at_the_boundary)
+    o = build_octree(sphere_points(20_000), 6, neighbors=False)
+    lv = o.levels[o.adaptive_depth]
+    nonempty = lv.label != 0
+    measured = seen[0]
+    assert len(measured) == int(nonempty.sum()) >= 8
+    assert np.array_equal(lv.label[nonempty] == 1, measured > o.threshold)
+    assert (lv.label[nonempty] == 2).sum() == (measured == o.threshold).sum() > 0

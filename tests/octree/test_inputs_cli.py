@@ -85,7 +85,7 @@ def _npy_bytes(arr) -> bytes:
     (b"1 2 3\n4 5 nan\n7 8 9\n1 1 1\n", ".xyz", "NaN"),
     (b"1 2 3\n4 5 6\n", ".xyz", "at least 3"),
     (b"1 1 1\n1 1 1\n1 1 1\n1 1 1\n", ".xyz", "identical"),
-    (b"0 0 0\n1 1 1\n2 2 2\n3 3 3\n", ".xyz", "collinear"),
+    (b"0 0 0\n1 1 1\n2 2 2\n3 3 3\n", ".xyz", "on a line"),
     (b"0 0 0 0 0 0\n1 0 0 0 0 1\n0 1 0 0 0 1\n1 1 0 0 0 1\n", ".xyz", "zero length"),
     (b"1 2\n3 4\n5 6\n", ".txt", r"3 \(x y z\) or 6"),
     (b"1 2 3\n4 5\n", ".txt", "different numbers of columns"),

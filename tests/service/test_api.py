@@ -208,7 +208,7 @@ def _torch_probabilities(model, pts, normals, depth: int, rotations: int = 1) ->
         r = axis_rotation(2 * np.pi * k / 12, "y")
         trees.append(build_octree(validate(pts @ r.T, normals @ r.T), depth, adaptive=True))
     with torch.no_grad():
-        return torch.softmax(model.logits(OctreeTensors.from_octree(merge_octrees(trees))), 1).mean(0).numpy()
+        return torch.softmax(model.logits(OctreeTensors.from_octree(merge_octrees(trees))), 1).numpy()
 
 
 def test_classify_returns_the_models_top_categories_with_and_without_the_12_rotation_vote(client, exported, clouds):
@@ -221,12 +221,16 @@ def test_classify_returns_the_models_top_categories_with_and_without_the_12_rota
         body = r.json()
         assert body["model"] == "classify-test" and len(body["top"]) == 2
         assert {"decode_input", "octree_build", "encoder"} <= {t.split(";")[0] for t in r.headers["server-timing"].split(", ")}
-        want = _torch_probabilities(model, pts, normals, cfg.depth, rotations)
+        per_rotation = _torch_probabilities(model, pts, normals, cfg.depth, rotations)
+        want, votes = per_rotation.mean(0), np.bincount(per_rotation.argmax(1), minlength=len(cfg.categories))
         order = np.argsort(-want)[:2]
+        assert body["rotations"] == rotations
         assert [t["category"] for t in body["top"]] == [cfg.categories[i] for i in order]
         assert np.allclose([t["probability"] for t in body["top"]], want[order], atol=1e-4)
-    every = client.post("/v1/classify?top_k=50", files={"shape": ("s.npz", data)}).json()["top"]
+        assert [t["votes"] for t in body["top"]] == votes[order].tolist()
+    every = client.post("/v1/classify?top_k=50&vote=true", files={"shape": ("s.npz", data)}).json()["top"]
     assert sorted(t["category"] for t in every) == sorted(cfg.categories)
+    assert sum(t["votes"] for t in every) == 12
     assert sum(t["probability"] for t in every) == pytest.approx(1, abs=1e-4)
     assert client.post("/v1/classify", files={"shape": ("s.xyz", b"0 0 0\n1 0 0\n2 0 0\n")}).status_code == 400
 

@@ -7,9 +7,13 @@ import asyncio
 import io
 import os
 import pickle
+import re
 import shutil
+import subprocess
+import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,6 +27,8 @@ from service.settings import Settings
 from ..torchless import run_without_torch
 from .conftest import make_client
 from .test_api import _npy, png, photo
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _err(r, status: int, code: str | None = None) -> dict:
@@ -71,21 +77,41 @@ def test_missing_or_wrong_fields_and_bad_parameters(client):
     _err(client.get("/v1/image-to-shape"), 405)
 
 
+def _zip_bytes() -> bytes:
+    import zipfile
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        z.writestr("notes.txt", "not arrays")
+    return buf.getvalue()
+
+
 def _npz_bytes(**arrays) -> bytes:
     buf = io.BytesIO()
     np.savez(buf, **arrays)
     return buf.getvalue()
 
 
+MARKER = os.path.join(tempfile.gettempdir(), f"aocnn-unpickled-{os.getpid()}")
+"""Created if any upload's pickle is ever unpickled (np.load with allow_pickle=True)."""
+
+
+class Trap:
+    """Unpickling this opens (creates) :data:`MARKER`: an observable side effect, nothing worse."""
+
+    def __reduce__(self):
+        return (open, (MARKER, "w"))
+
+
 def _object_npy() -> bytes:
     buf = io.BytesIO()
-    np.save(buf, np.array([{"a": 1}, None], dtype=object), allow_pickle=True)
+    np.save(buf, np.array([Trap(), None], dtype=object), allow_pickle=True)
     return buf.getvalue()
 
 
-class Boom:
-    def __reduce__(self):
-        return (os.system, ("touch /tmp/aocnn-pwned",))
+def _object_npz() -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, points=np.array([Trap(), None], dtype=object))
+    return buf.getvalue()
 
 
 def _ply(n_declared: int, n_given: int) -> bytes:
@@ -99,37 +125,81 @@ def _sphere(n=2000, seed=0):
     return p / np.linalg.norm(p, axis=1, keepdims=True)
 
 
-POINTS = {
-    "empty file": (b"", 400),
-    "pickled object array": (_object_npy(), 400),
-    "raw pickle": (pickle.dumps(Boom()), 400),
-    "complex dtype": (_npy((_sphere() + 1j).astype(np.complex64)), 400),
-    "complex dtype in an NPZ": (_npz_bytes(points=_sphere() + 1j), 400),
-    "boolean dtype": (_npy(_sphere() > 0), 400),
-    "string dtype": (_npy(np.array([["a", "b", "c"]] * 10)), 400),
-    "NaN coordinates": (_npy(np.vstack([_sphere(), [[np.nan, 0, 0]]])), 400),
-    "infinite coordinates": (_npy(np.vstack([_sphere(), [[np.inf, 0, 0]]])), 400),
-    "a single point": (b"1 2 3\n", 400),
-    "identical points": (_npy(np.ones((500, 3))), 400),
-    "collinear points": (_npy(np.outer(np.arange(500.0), [1, 2, 3])), 400),
-    "PLY promising more vertices than it holds": (_ply(1000, 10), 400),
-    "PLY declaring 10 million vertices": (_ply(10_000_000, 10), 413),
+def _png_bytes() -> bytes:
+    return png(np.full((16, 16, 3), 200, np.uint8))
+
+
+def _text(rows) -> bytes:
+    return "".join(" ".join(f"{v:.6g}" for v in r) + "\n" for r in rows).encode()
+
+
+_t = np.arange(1, 301)
+POINTS = {  # name: (bytes, status, what the message must say)
+    "empty file": (b"", 400, "empty"),
+    "pickled object array (NPY)": (_object_npy(), 400, "(?i)object arrays cannot be loaded"),
+    "pickled object array (NPZ)": (_object_npz(), 400, "(?i)object arrays cannot be loaded"),
+    "raw pickle": (pickle.dumps(Trap()), 415, "this is a Python pickle; this endpoint takes a point cloud"),
+    "a PNG image": (_png_bytes(), 415, r"this is a PNG image; this endpoint takes a point cloud \(PLY, XYZ/TXT, NPY, "
+                                     r"NPZ or OBJ vertices\)"),
+    "a PDF": (b"%PDF-1.4\n" + b"0" * 100, 415, "this is a PDF document"),
+    "a ZIP that is not an NPZ": (_zip_bytes(), 415, "this is a ZIP archive"),
+    "complex dtype": (_npy((_sphere() + 1j).astype(np.complex64)), 400, "complex64 values"),
+    "complex dtype in an NPZ": (_npz_bytes(points=_sphere() + 1j), 400, "complex128 values"),
+    "boolean dtype": (_npy(_sphere() > 0), 400, "bool values"),
+    "string dtype": (_npy(np.array([["a", "b", "c"]] * 10)), 400, "values, not real numbers"),
+    "NaN coordinates": (_npy(np.vstack([_sphere(), [[np.nan, 0, 0]]])), 400, "NaN or infinite .*row 2000"),
+    "infinite coordinates": (_npy(np.vstack([_sphere(), [[np.inf, 0, 0]]])), 400, "NaN or infinite"),
+    "two rows, one NaN": (b"1 2 3\nnan 5 6\n", 400, "NaN or infinite coordinates \\(first at row 1\\)"),
+    "a single point": (b"1 2 3\n", 400, "at least 3 points"),
+    "identical points": (_npy(np.ones((500, 3))), 400, "identical"),
+    "collinear points": (_npy(np.outer(np.arange(500.0), [1, 2, 3])), 400, "on a line"),
+    "collinear within 6-digit rounding": (_text(np.outer(_t, [0.001001, 0.002002, 0.003003])), 400, "on a line"),
+    "collinear within rounding, irrational steps": (_text(np.stack([_t / 7, 2 * _t / 7, 3 * _t / 7 + 1], 1)), 400,
+                                                    "on a line"),
+    "PLY promising more vertices than it holds": (_ply(1000, 10), 400, "declares 1,000 vertices but the file holds 10"),
+    "PLY declaring 10 million vertices": (_ply(10_000_000, 10), 413, "10,000,000 vertices"),
     "10 million points (NPY header)": (b"\x93NUMPY\x01\x00v\x00{'descr': '<f4', 'fortran_order': False, "
-                                       b"'shape': (10000000, 3), }" + b" " * 40 + b"\n", 413),
-    "wrong columns": (_npy(np.ones((100, 2))), 400),
-    "binary junk": (bytes(range(256)) * 20, 400),
-    "corrupt npz": (b"PK\x03\x04" + b"\x00" * 100, 400),
+                                       b"'shape': (10000000, 3), }" + b" " * 40 + b"\n", 413, "10,000,000 rows"),
+    "wrong columns": (_npy(np.ones((100, 2))), 400, "3 \\(x y z\\) or 6"),
+    "binary junk": (bytes(range(256)) * 20, 415, "binary data of no format"),
+    "text in no format": (b"hello, I am not a point cloud\n", 415, "text in no format"),
+    "corrupt npz": (b"PK\x03\x04" + b"\x00" * 100, 400, "corrupt"),
 }
 
 
 @pytest.mark.parametrize("case", sorted(POINTS))
 def test_bad_point_clouds(client, case):
-    data, status = POINTS[case]
+    data, status, message = POINTS[case]
     before = set(os.listdir(tempfile.gettempdir()))
     r = client.post("/v1/complete", files={"points": ("scan.bin", data, "application/octet-stream")})
-    _err(r, status)
-    assert not os.path.exists("/tmp/aocnn-pwned")
+    body = _err(r, status)
+    assert re.search(message, body["message"]), body["message"]
+    assert not os.path.exists(MARKER)
     assert not [f for f in set(os.listdir(tempfile.gettempdir())) - before if f.startswith("aocnn-")]
+
+
+CLI_CASES = {  # the same bytes under the name they claim -> what the command line says
+    "pickled object array (NPY)": (".npy", "(?i)object arrays cannot be loaded"),
+    "pickled object array (NPZ)": (".npz", "(?i)object arrays cannot be loaded"),
+    "raw pickle": (".npy", "this is a Python pickle; a mesh .* or a point cloud .* is needed"),
+    "a PNG image": (".xyz", r"this is a PNG image; a mesh \(OBJ, OFF, STL, PLY, GLB or glTF\) or a point cloud"),
+    "two rows, one NaN": (".xyz", r"NaN or infinite coordinates \(first at row 1\)"),
+    "collinear within 6-digit rounding": (".xyz", "on a line"),
+    "collinear within rounding, irrational steps": (".txt", "on a line"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CLI_CASES))
+def test_the_command_line_refuses_the_same_inputs_with_one_line(tmp_path, case):
+    """Exit status 2, one line saying what is wrong, no output file, and nothing unpickled."""
+    suffix, message = CLI_CASES[case]
+    src = tmp_path / f"input{suffix}"
+    src.write_bytes(POINTS[case][0])
+    proc = subprocess.run([sys.executable, "-m", "model.octree", str(src), "--depth", "5", "--out",
+                           str(tmp_path / "out.ply")], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert re.search(message, proc.stderr), proc.stderr
+    assert not (tmp_path / "out.ply").exists() and not os.path.exists(MARKER)
 
 
 def test_uploads_cannot_make_the_server_read_its_own_files(client):
@@ -263,4 +333,28 @@ def test_python_m_service_exits_2_with_one_line_on_bad_settings_or_bundles(tmp_p
     monkeypatch.setenv("AOCNN_MAX_POINTS", "many")
     assert main([]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "max_points" in err
+    assert err.count("\n") == 1 and "AOCNN_MAX_POINTS=many is not valid" in err and "an integer >= 3" in err
+    monkeypatch.delenv("AOCNN_MAX_POINTS")
+    monkeypatch.setenv("AOCNN_MAX_OCTREE_DEPTH", "13")
+    assert main([]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "AOCNN_MAX_OCTREE_DEPTH=13" in err and "<= 12" in err
+    monkeypatch.setenv("AOCNN_MAX_OCTREE_DEPTH", "12")      # the octree core's deepest build is allowed
+    assert main(["--models-dir", str(tmp_path / "none"), "--port", "70000"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--port 70000 is not valid" in err and "<= 65535" in err
+
+
+def test_one_source_for_each_limit_and_the_readme_table_is_made_from_it(client):
+    from model.octree.build import MAX_BUILD_DEPTH, build_octree  # noqa: F401
+    from service.settings import settings_table
+
+    readme = (ROOT / "README.md").read_text()
+    assert settings_table() in readme, "README's settings table differs from python -m service --settings"
+    field = Settings.model_fields["max_octree_depth"]
+    assert [getattr(m, "le", None) for m in field.metadata if hasattr(m, "le")] == [MAX_BUILD_DEPTH]
+    assert Settings(max_octree_depth=MAX_BUILD_DEPTH).max_octree_depth == MAX_BUILD_DEPTH
+    body = _err(client.post("/v1/octree?depth=9", files={"shape": ("s.xyz", b"0 0 0")}), 422, "invalid_depth")
+    assert "AOCNN_MAX_OCTREE_DEPTH" in body["hint"] and "at most 8" in body["message"]
+    _err(client.post(f"/v1/octree?depth={MAX_BUILD_DEPTH + 1}", files={"shape": ("s.xyz", b"0 0 0")}), 422,
+         "invalid_request")

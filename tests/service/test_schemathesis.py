@@ -4,13 +4,12 @@ and every response matches the schema (status codes, content types, bodies)."""
 from __future__ import annotations
 
 import pytest
+import schemathesis
+from hypothesis import HealthCheck, settings
 
-schemathesis = pytest.importorskip("schemathesis")
-from hypothesis import HealthCheck, settings  # noqa: E402
-
-from service.app import create_app  # noqa: E402
-from service.engine import Engine  # noqa: E402
-from service.settings import Settings  # noqa: E402
+from service.app import create_app
+from service.engine import Engine
+from service.settings import Settings
 
 
 @pytest.fixture(scope="module")
