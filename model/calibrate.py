@@ -25,7 +25,8 @@ from .files import atomic_path, json_text, write_atomic
 from .networks import OctreeDecoder
 from .nn.tensors import OctreeTensors
 from .octree import SPLIT
-from .train.loop import load_checkpoint
+from .checkpoint import load_model
+from .train.config import load_checkpoint
 from .train.tasks import TASKS
 
 BIASES = np.round(np.arange(-4.0, 4.0001, 0.05), 2)
@@ -76,9 +77,8 @@ def fold_bias(decoder: OctreeDecoder, depth: int, bias: float) -> None:
 
 def calibrate(run: str, data: str, out: str, split: str = "val") -> dict:
     """Write the calibrated copy of ``run`` to ``out``; returns the per-depth report."""
-    from .evaluate import load_run
-
-    model, cfg = load_run(run)
+    loaded = load_model(run)
+    model, cfg = loaded.model, loaded.config
     if not isinstance(model.decoder, OctreeDecoder) or model.decoder.mode != "adaptive":
         raise ValueError("calibration needs an Adaptive O-CNN (aocnn) decoder")
     out_dir = Path(out)

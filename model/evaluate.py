@@ -28,7 +28,6 @@ import dataclasses
 import os
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -43,16 +42,10 @@ from .octree import LEAF, Octree
 from .octree.metrics import chamfer_distance, mean_squared_distance, missing_part, sample_patches
 from .octree.patches import patches_to_mesh
 from .octree.batch import split_octree
-from .train.loop import TrainConfig
+from .train.config import TrainConfig
 from .train.images import image_batch
 from .train.completion import truth_view
 from .train.tasks import TASKS
-
-
-def load_run(run: str | Path) -> tuple[torch.nn.Module, TrainConfig]:
-    """The trained model (eval mode) and the configuration of a run or checkpoint folder."""
-    loaded = load_model(run)
-    return loaded.model, loaded.config
 
 
 ORACLES = ("none", "structure", "all")
@@ -149,7 +142,8 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     completion inputs built with the scanner's normals or with estimated ones."""
     if oracle not in ORACLES:
         raise ValueError(f"--oracle must be one of {', '.join(ORACLES)}")
-    model, cfg = load_run(run)
+    loaded = load_model(run)
+    model, cfg = loaded.model, loaded.config
     cfg = dataclasses.replace(cfg, data=data)          # the dataset to evaluate on (not the training one)
     if cfg.task == "classify":
         return evaluate_classifier(model, cfg, run, split, limit)

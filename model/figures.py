@@ -21,7 +21,8 @@ import trimesh
 from PIL import Image, ImageDraw
 
 from .data.render import render
-from .evaluate import ATLAS_GRID, decoded_points, load_run
+from .checkpoint import load_model
+from .evaluate import ATLAS_GRID, decoded_points
 from .networks import AtlasNetDecoder, OctreeDecoder
 from .octree.patches import DEPTH_COLORS, patches_to_mesh
 from .train.images import eval_view
@@ -75,7 +76,7 @@ def output_mesh(model, latent: torch.Tensor, resolution: int = 64) -> list[tuple
 def figure(data: str, runs: list[tuple[str, str]], split: str = "test", shapes: int = 6,
            categories: list[str] | None = None) -> Image.Image:
     """The picture described in the module docstring."""
-    models = [(name, *load_run(path)) for name, path in runs]
+    models = [(name, loaded.model, loaded.config) for name, loaded in ((n, load_model(p)) for n, p in runs)]
     first_cfg = dataclasses.replace(models[0][2], data=data)     # the dataset asked for, not the run's
     if len({cfg.task for _, _, cfg in models}) > 1:
         raise ValueError("--runs must all be of one task (all image models, all autoencoders or all completion models)")

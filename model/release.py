@@ -70,7 +70,7 @@ def package(run: Path, data: Path, results: dict, out: Path, recipe: Recipe, com
     """Write ``out/model.pt`` (the plain state_dict) and ``out/model.json`` (provenance)."""
     import torch
 
-    from .train.loop import load_checkpoint
+    from .train.config import load_checkpoint
 
     state = load_checkpoint(run / "checkpoint.pt")
     out.mkdir(parents=True, exist_ok=True)

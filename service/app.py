@@ -12,7 +12,7 @@ from fastapi.middleware.cors import CORSMiddleware
 
 from . import errors
 from .engine import Engine
-from .limits import BodyLimit
+from .body_limit import BodyLimit
 from .routers import apidocs, demo, health, models, shapes
 from .settings import Settings
 

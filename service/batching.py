@@ -9,12 +9,10 @@ request is its own batch.
 from __future__ import annotations
 
 import asyncio
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 from .errors import APIError
-
-if TYPE_CHECKING:
-    from .engine import Limiter
+from .limiter import Limiter
 
 
 class Batcher:

@@ -6,7 +6,7 @@ import json
 import math
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -14,91 +14,9 @@ import torch
 from torch import distributed as dist
 
 from ..files import atomic_path, json_text
+from .config import TrainConfig, config_from_dict, load_checkpoint
 from .data import RecordSet
-from .tasks import TASKS
-
-
-@dataclass
-class TrainConfig:
-    """Everything a run depends on; saved to RUN/config.json and checked on resume."""
-
-    data: str
-    depth: int
-    arch: str
-    out: str
-    iters: int = 2000
-    epochs: float | None = None
-    batch_size: int = 8
-    optimizer: str = "adam"
-    lr: float | None = None
-    weight_decay: float = 0.0
-    val_every: int = 200
-    ckpt_every: int = 100
-    latent: int = 128
-    channels: int = 8
-    structure_loss: str = "ce"
-    pred_hidden: int = 8
-    decoder_blocks: int = 1
-    seed: int = 0
-    limit: int | None = None
-    progress: bool = True
-    task: str = "autoencoder"
-    categories: list[str] | None = None       # train on these categories only
-    encoder: str = "resnet18"                  # image task: the image encoder
-    encoder_width: int | None = None           # image task: its width (None: the encoder's default)
-    image_size: int = 128                      # image task: encoder input side
-    background_share: float = 0.5              # image task: samples composited onto a background
-    teacher: str | None = None                 # image task: regress onto this autoencoder run's latents
-    workers: int = 1                           # completion, classify: processes building the octree cache
-    up: str = "y"                              # classify: the up axis of the dataset's shapes
-
-    def check(self) -> None:
-        """Raise ValueError naming the first setting that cannot train."""
-        if self.task not in TASKS:
-            raise ValueError(f"unknown task {self.task!r}; choose from {', '.join(TASKS)}")
-        TASKS[self.task].check(self)
-        if self.encoder_width is not None and self.encoder_width < 1:
-            raise ValueError(f"--encoder-width must be at least 1, got {self.encoder_width}")
-        for name in ("iters", "batch_size", "val_every", "ckpt_every", "latent", "channels", "pred_hidden",
-                     "decoder_blocks", "workers"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
-        if self.limit is not None and self.limit < 1:
-            raise ValueError(f"--limit must be at least 1, got {self.limit}")
-        if self.epochs is not None and not self.epochs > 0:
-            raise ValueError(f"--epochs must be positive, got {self.epochs}")
-        if self.lr is not None and not self.lr > 0:
-            raise ValueError(f"--lr must be positive, got {self.lr}")
-        if not self.weight_decay >= 0:
-            raise ValueError(f"--weight-decay must be >= 0, got {self.weight_decay}")
-        out = Path(self.out)
-        if out.exists() and not out.is_dir():
-            raise ValueError(f"--out {self.out} is a file; give a run folder")
-
-
-def load_checkpoint(path: Path) -> dict:
-    """A checkpoint written by :meth:`Trainer.save`: FileNotFoundError if it is missing,
-    ValueError if it cannot be read or is something else."""
-    if not path.is_file():
-        raise FileNotFoundError(f"{path} not found: train first with python -m model.train")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:  # torch raises many types for a damaged file
-        raise ValueError(f"{path} is not a readable checkpoint ({type(exc).__name__}); "
-                         "delete it or use another run folder") from None
-    if not isinstance(state, dict) or not {"model", "config", "step"} <= set(state):
-        raise ValueError(f"{path} is not a checkpoint of python -m model.train")
-    return state
-
-
-LEGACY_DEFAULTS = {"structure_loss": "ce", "pred_hidden": 8, "decoder_blocks": 1, "task": "autoencoder"}
-"""Settings of runs saved before the setting existed (the paper's values)."""
-
-
-def config_from_dict(saved: dict) -> TrainConfig:
-    """The TrainConfig of a saved run, older runs' missing settings filled with what they used."""
-    known = TrainConfig.__dataclass_fields__
-    return TrainConfig(**{**LEGACY_DEFAULTS, **{k: v for k, v in saved.items() if k in known}})
+from .tasks import TASKS, check_config
 
 
 def build_model(cfg: TrainConfig) -> torch.nn.Module:
@@ -109,7 +27,7 @@ class Trainer:
     """One training run (one process of a distributed run when WORLD_SIZE > 1)."""
 
     def __init__(self, cfg: TrainConfig):
-        cfg.check()
+        check_config(cfg)
         self.cfg = cfg
         self.world = int(os.environ.get("WORLD_SIZE", "1"))
         self.rank = int(os.environ.get("RANK", "0"))

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import functools
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -19,11 +19,9 @@ from ..networks import ARCHS, IMAGE_DECODERS, IMAGE_ENCODERS, Autoencoder, Image
 from ..networks.decoder import STRUCTURE_LOSSES
 from ..nn.tensors import OctreeTensors
 from ..preprocess import ImageSpec
+from .config import TrainConfig, read_run
 from .data import RecordSet
 from .images import image_batch
-
-if TYPE_CHECKING:
-    from .loop import TrainConfig
 
 
 class Task(Protocol):
@@ -211,11 +209,24 @@ class ClassifyTask(OctreeInputTask):
 
 
 @functools.lru_cache(maxsize=4)
-def _load_teacher(run: str):
+def _load_teacher(run: str) -> tuple[nn.Module, TrainConfig]:
     """A teacher autoencoder run (model in eval mode, config), loaded once per process."""
-    from ..evaluate import load_run
-    return load_run(run)
+    saved = read_run(run)
+    if saved.config.task != "autoencoder":
+        raise ValueError(f"--teacher {run} is a {saved.config.task} run, not an autoencoder")
+    model = AutoencoderTask().build_model(saved.config)
+    model.load_state_dict(saved.weights)
+    return model.eval(), saved.config
 
 
 TASKS: dict[str, Task] = {"autoencoder": AutoencoderTask(), "image": ImageTask(), "completion": CompletionTask(),
                           "classify": ClassifyTask()}
+
+
+def check_config(cfg: TrainConfig) -> None:
+    """Raise ValueError naming the first setting of ``cfg`` that cannot train: its task's own
+    settings, then the generic ones."""
+    if cfg.task not in TASKS:
+        raise ValueError(f"unknown task {cfg.task!r}; choose from {', '.join(TASKS)}")
+    TASKS[cfg.task].check(cfg)
+    cfg.check()

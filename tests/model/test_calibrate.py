@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from model.calibrate import calibrate, matching_bias, split_logits
-from model.evaluate import load_run
+from model.checkpoint import load_model
 from model.octree import SPLIT
 from model.train.loop import TrainConfig, Trainer
 from model.train.tasks import TASKS
@@ -40,7 +40,8 @@ def test_calibrated_copy_differs_only_in_split_biases_and_matches_counts(tiny_da
         assert torch.equal(diff[3:], torch.zeros_like(diff[3:]))          # plane outputs untouched
     assert json.loads((tmp_path / "cal" / "calibration.json").read_text()) == report
     # re-measured on the calibrated model: the counts are matched as reported
-    model, cfg2 = load_run(tmp_path / "cal")
+    loaded = load_model(tmp_path / "cal")
+    model, cfg2 = loaded.model, loaded.config
     cfg2.data = str(tiny_data)
     for d, (logits, labels) in split_logits(model, cfg2, TASKS["autoencoder"].dataset(cfg2, "train", 0)).items():
         ratio = (logits.argmax(1) == SPLIT).sum() / max(1, (labels == SPLIT).sum())

@@ -139,7 +139,7 @@ def test_atlasnet_decoder_patches_are_per_shape_and_cover_the_grid():
     dec = AtlasNetDecoder(latent=8, patches=4, train_points=40)
     z = torch.randn(3, 8)
     assert dec(z).shape == (3, 40, 3)
-    grid = dec.grid(z, side=5)
+    grid = dec.grid(z, side=5).detach()
     assert grid.shape == (3, 100, 3) and float(grid.min()) >= 0 and float(grid.max()) <= 1
     assert torch.allclose(grid[2], dec.grid(z[2:], side=5)[0], atol=1e-6)    # shapes do not mix
     faces = dec.triangles(side=5)

@@ -4,7 +4,6 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
 from model.data.dataset import load_record
 from model.octree import build_octree, scan_frame, scan_octree, validate

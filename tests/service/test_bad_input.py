@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from service.engine import Engine, Limiter, StartupError, plan_threads
+from service.engine import Engine, StartupError
+from service.limiter import Limiter, plan_threads
 from service.errors import APIError
 from service.metrics import Metrics
 from service.settings import Settings

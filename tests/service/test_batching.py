@@ -11,7 +11,7 @@ import pytest
 import trimesh
 
 from service.batching import Batcher
-from service.engine import Limiter
+from service.limiter import Limiter
 from service.errors import APIError
 from service.metrics import Metrics
 

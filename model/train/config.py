@@ -1,0 +1,134 @@
+"""A run's configuration and the reading of saved runs: below the tasks, the loop, evaluation and
+export, so that each of them can load a run without importing another.
+
+A run folder holds ``checkpoint.pt`` (written by :meth:`model.train.loop.Trainer.save`); a
+checkpoint folder holds ``model.pt`` (a state dict, float32 or half precision) and ``model.json``
+(written by :mod:`model.release`).  :func:`read_run` reads either into a :class:`SavedRun`;
+building the network from it is the task's (:func:`model.checkpoint.load_model`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+from ..files import sha256_file
+
+
+@dataclass
+class TrainConfig:
+    """Everything a run depends on; saved to RUN/config.json and checked on resume."""
+
+    data: str
+    depth: int
+    arch: str
+    out: str
+    iters: int = 2000
+    epochs: float | None = None
+    batch_size: int = 8
+    optimizer: str = "adam"
+    lr: float | None = None
+    weight_decay: float = 0.0
+    val_every: int = 200
+    ckpt_every: int = 100
+    latent: int = 128
+    channels: int = 8
+    structure_loss: str = "ce"
+    pred_hidden: int = 8
+    decoder_blocks: int = 1
+    seed: int = 0
+    limit: int | None = None
+    progress: bool = True
+    task: str = "autoencoder"
+    categories: list[str] | None = None       # train on these categories only
+    encoder: str = "resnet18"                  # image task: the image encoder
+    encoder_width: int | None = None           # image task: its width (None: the encoder's default)
+    image_size: int = 128                      # image task: encoder input side
+    background_share: float = 0.5              # image task: samples composited onto a background
+    teacher: str | None = None                 # image task: regress onto this autoencoder run's latents
+    workers: int = 1                           # completion, classify: processes building the octree cache
+    up: str = "y"                              # classify: the up axis of the dataset's shapes
+
+    def check(self) -> None:
+        """Raise ValueError naming the first generic setting that cannot train (the task checks
+        its own: :func:`model.train.tasks.check_config`)."""
+        if self.encoder_width is not None and self.encoder_width < 1:
+            raise ValueError(f"--encoder-width must be at least 1, got {self.encoder_width}")
+        for name in ("iters", "batch_size", "val_every", "ckpt_every", "latent", "channels", "pred_hidden",
+                     "decoder_blocks", "workers"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
+        if self.limit is not None and self.limit < 1:
+            raise ValueError(f"--limit must be at least 1, got {self.limit}")
+        if self.epochs is not None and not self.epochs > 0:
+            raise ValueError(f"--epochs must be positive, got {self.epochs}")
+        if self.lr is not None and not self.lr > 0:
+            raise ValueError(f"--lr must be positive, got {self.lr}")
+        if not self.weight_decay >= 0:
+            raise ValueError(f"--weight-decay must be >= 0, got {self.weight_decay}")
+        out = Path(self.out)
+        if out.exists() and not out.is_dir():
+            raise ValueError(f"--out {self.out} is a file; give a run folder")
+
+
+def load_checkpoint(path: Path) -> dict:
+    """A checkpoint written by :meth:`Trainer.save`: FileNotFoundError if it is missing,
+    ValueError if it cannot be read or is something else."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found: train first with python -m model.train")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # torch raises many types for a damaged file
+        raise ValueError(f"{path} is not a readable checkpoint ({type(exc).__name__}); "
+                         "delete it or use another run folder") from None
+    if not isinstance(state, dict) or not {"model", "config", "step"} <= set(state):
+        raise ValueError(f"{path} is not a checkpoint of python -m model.train")
+    return state
+
+
+LEGACY_DEFAULTS = {"structure_loss": "ce", "pred_hidden": 8, "decoder_blocks": 1, "task": "autoencoder"}
+"""Settings of runs saved before the setting existed (the paper's values)."""
+
+
+def config_from_dict(saved: dict) -> TrainConfig:
+    """The TrainConfig of a saved run, older runs' missing settings filled with what they used."""
+    known = TrainConfig.__dataclass_fields__
+    return TrainConfig(**{**LEGACY_DEFAULTS, **{k: v for k, v in saved.items() if k in known}})
+
+
+@dataclass
+class SavedRun:
+    """A saved run's configuration, float32 weights and provenance (``meta``: a checkpoint folder's
+    model.json, or a run's config, step and calibration)."""
+
+    config: TrainConfig
+    weights: dict[str, torch.Tensor]
+    meta: dict = field(default_factory=dict)
+
+
+def read_run(path: str | Path) -> SavedRun:
+    """The configuration and weights of a run folder or a checkpoint folder.  ValueError if ``path``
+    is neither, or its weights do not match the checksum model.json records.  Half-precision
+    weights (how shipped checkpoints are stored) are returned as float32."""
+    path = Path(path)
+    if (path / "model.json").is_file() and (path / "model.pt").is_file():
+        meta = json.loads((path / "model.json").read_text())
+        digest = sha256_file(path / "model.pt")
+        if meta.get("weights_sha256") not in (None, digest):
+            raise ValueError(f"{path / 'model.pt'}: sha256 {digest} does not match model.json")
+        cfg = config_from_dict({"data": "", "out": "", **meta["config"]})
+        weights = torch.load(path / "model.pt", map_location="cpu", weights_only=True)
+    elif (path / "checkpoint.pt").is_file():
+        state = load_checkpoint(path / "checkpoint.pt")
+        cfg, weights = config_from_dict(state["config"]), state["model"]
+        meta = {"config": {k: v for k, v in state["config"].items() if k not in ("out", "progress")},
+                "steps": state.get("step"), "calibration": state.get("calibration"),
+                "weights_sha256": None, "source_run": str(path.resolve())}
+    else:
+        raise ValueError(f"{path}: neither a run folder (checkpoint.pt) nor a checkpoint folder "
+                         f"(model.pt + model.json)")
+    weights = {k: v.float() if v.is_floating_point() else v for k, v in weights.items()}
+    return SavedRun(cfg, weights, meta)
