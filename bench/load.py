@@ -12,7 +12,6 @@ spent outside the model (1 - (encoder + decoder) / latency, from the Server-Timi
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import json
 import os
@@ -24,6 +23,7 @@ import time
 from pathlib import Path
 
 import httpx2 as httpx
+from model.cli import command_parser
 
 FIELDS = {"image-to-shape": "image", "complete": "points", "octree": "shape", "classify": "shape"}
 TARGET_OUTSIDE = 0.15
@@ -86,7 +86,7 @@ async def _run(url: str, field: str, data: bytes, name: str, concurrency: int, s
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m bench.load", description=__doc__.splitlines()[0])
+    ap = command_parser("python -m bench.load", __doc__, ['python -m bench.load --seconds 20 --concurrency 1 4 16'])
     ap.add_argument("--endpoint", choices=sorted(FIELDS), default="image-to-shape", help="default image-to-shape")
     ap.add_argument("--input", default="examples/chair_photo.jpg", help="file to upload (default the example photo)")
     ap.add_argument("--concurrency", type=int, nargs="+", default=[1, 4], help="requests in flight (default 1 4)")

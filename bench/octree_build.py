@@ -46,6 +46,7 @@ import trimesh
 
 from model.octree import Normalization, build_octree
 from model.octree.pointcloud import normalization_of
+from model.cli import command_parser
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DEFAULT_MESH_DIR = os.path.join(REPO_ROOT, "..", "shared", "meshes")
@@ -69,13 +70,14 @@ class Case:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--depths", type=int, nargs="+", default=[6, 7, 8])
-    p.add_argument("--repeats", type=int, default=7)
-    p.add_argument("--points", type=int, default=100_000)
+    p = command_parser("python -m bench.octree_build", __doc__, [
+        "python -m bench.octree_build --depths 6 7 8 --repeats 9"])
+    p.add_argument("--depths", type=int, nargs="+", default=[6, 7, 8], help="octree depths (default 6 7 8)")
+    p.add_argument("--repeats", type=int, default=7, help="timed runs; the median is reported (default 7)")
+    p.add_argument("--points", type=int, default=100_000, help="points sampled per mesh (default 100000)")
     p.add_argument("--meshes", nargs="+", default=DEFAULT_MESHES,
-                   help="mesh file names inside --mesh-dir (or paths)")
-    p.add_argument("--mesh-dir", default=DEFAULT_MESH_DIR)
+                   help="mesh file names inside --mesh-dir, or paths (default: " + " ".join(DEFAULT_MESHES) + ")")
+    p.add_argument("--mesh-dir", default=DEFAULT_MESH_DIR, help="folder of the meshes (default: ../shared/meshes beside the checkout)")
     p.add_argument("--json", metavar="PATH", help="also write a JSON summary here")
     return p.parse_args(argv)
 

@@ -1,8 +1,8 @@
 """Octants whose label changed when the patch's closing edge got its boundary probes, each
 checked against a dense reference of the mesh.
 
-Until session 6 the boundary probes of a polygon with fewer than 6 vertices skipped its closing
-edge (vertex n-1 back to vertex 0): that edge's probes all sat on vertex n-1.  Probing the edge
+Before commit 22afaf2 the boundary probes of a polygon with fewer than 6 vertices skipped its
+closing edge (vertex n-1 back to vertex 0): that edge's probes all sat on vertex n-1.  Probing the edge
 can only add probes, so a change can only turn a leaf into a split.  For every octant whose
 label differs between the two rules (same points, same depth), this script measures the
 octant's patch against 2M samples of the mesh itself: the Hausdorff distance between the patch
@@ -15,7 +15,6 @@ distance is above the split threshold.
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 from contextlib import contextmanager
@@ -31,6 +30,7 @@ from bench.octree_build import DEFAULT_MESH_DIR, mesh_files, mesh_samples
 from model.octree import LEAF, SPLIT, build_octree
 from model.octree.geometry import MAX_POLYGON, cube_polygons, patch_probes, polygon_distance
 from model.octree.octree import Octree
+from model.cli import command_parser
 
 
 @dataclass
@@ -107,12 +107,13 @@ def label_changes(mesh_path: str, depth: int, points: int, dense: int) -> tuple[
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = command_parser("python -m bench.octree_label_changes", __doc__, [
+        "python -m bench.octree_label_changes --mesh-dir ../shared/meshes"])
     ap.add_argument("--meshes", nargs="*", default=None, help="file names in --mesh-dir (default all)")
-    ap.add_argument("--mesh-dir", default=DEFAULT_MESH_DIR)
-    ap.add_argument("--depths", type=int, nargs="+", default=[6, 7, 8])
-    ap.add_argument("--points", type=int, default=100_000)
-    ap.add_argument("--dense", type=int, default=2_000_000)
+    ap.add_argument("--mesh-dir", default=DEFAULT_MESH_DIR, help="folder of the meshes (default: ../shared/meshes beside the checkout)")
+    ap.add_argument("--depths", type=int, nargs="+", default=[6, 7, 8], help="octree depths (default 6 7 8)")
+    ap.add_argument("--points", type=int, default=100_000, help="points sampled per mesh for the build (default 100000)")
+    ap.add_argument("--dense", type=int, default=2_000_000, help="mesh samples of the dense reference (default 2000000)")
     args = ap.parse_args(argv)
     names = args.meshes or mesh_files(args.mesh_dir)
     print(f"{'mesh':30s} depth  octants  changed  leaf->split  right  dense/threshold")

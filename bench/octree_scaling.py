@@ -21,6 +21,7 @@ import statistics
 import subprocess
 import sys
 import time
+from model.cli import command_parser
 
 CASES = ("ours full", "ours adaptive", "ocnn full")
 
@@ -57,7 +58,8 @@ def measure(case: str, mesh: str, points: int, depth: int, repeats: int) -> dict
 def main(argv: list[str] | None = None) -> int:
     from bench.octree_build import DEFAULT_MESH_DIR
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = command_parser("python -m bench.octree_scaling", __doc__, [
+        "python -m bench.octree_scaling --depths 6 7 8 --points 100000"])
     ap.add_argument("--depths", type=int, nargs="+", default=[6, 7, 8, 9, 10], help="octree depths (default 6-10)")
     ap.add_argument("--points", type=int, nargs="+", default=[100_000, 1_000_000],
                     help="sampled points per mesh (default 100000 1000000)")

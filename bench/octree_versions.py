@@ -4,16 +4,15 @@ Both builds get the same points (100k area-weighted samples of each mesh, face n
 and run interleaved (one warm-up, then the median of ``--repeats``), so the machine's drift
 affects both alike.  With ``--equal``, every mesh in ``--mesh-dir`` is built at depths 6-8 by both
 and the labels and delta_O compared; ``--previous-closing-edge`` builds this checkout with the
-boundary-probe rule of session 5 (see ``bench.octree_label_changes``).
+boundary-probe rule before commit 22afaf2 (see ``bench.octree_label_changes``).
 
-    git worktree add /tmp/s5 e951434          # the session-5 code
-    python -m bench.octree_versions --other /tmp/s5 [--meshes ...] [--repeats 7]
-    python -m bench.octree_versions --other /tmp/s5 --equal --previous-closing-edge
+    git worktree add ../aocnn-e951434 e951434          # the build before the speed-up
+    python -m bench.octree_versions --other ../aocnn-e951434 [--meshes ...] [--repeats 7]
+    python -m bench.octree_versions --other ../aocnn-e951434 --equal --previous-closing-edge
 """
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import os
 import statistics
@@ -25,6 +24,7 @@ import numpy as np
 
 from bench.octree_build import DEFAULT_MESH_DIR, mesh_files, sample_points
 from model.octree import build_octree
+from model.cli import command_parser
 
 
 def load_other(path: str) -> types.ModuleType:
@@ -83,14 +83,16 @@ def equality(other: types.ModuleType, names: list[str], mesh_dir: str, previous_
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = command_parser("python -m bench.octree_versions", __doc__, [
+        "python -m bench.octree_versions --other ../aocnn-e951434",
+        "python -m bench.octree_versions --other ../aocnn-e951434 --equal"])
     ap.add_argument("--other", required=True, help="path of the other checkout (its repository root)")
-    ap.add_argument("--meshes", nargs="*", default=None, help="file names in --mesh-dir")
-    ap.add_argument("--mesh-dir", default=DEFAULT_MESH_DIR)
-    ap.add_argument("--depth", type=int, default=8)
-    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--meshes", nargs="*", default=None, help="file names in --mesh-dir (default: the bench's meshes)")
+    ap.add_argument("--mesh-dir", default=DEFAULT_MESH_DIR, help="folder of the meshes (default: ../shared/meshes beside the checkout)")
+    ap.add_argument("--depth", type=int, default=8, help="octree depth of the timing (default 8)")
+    ap.add_argument("--repeats", type=int, default=7, help="timed runs; the median is reported (default 7)")
     ap.add_argument("--equal", action="store_true", help="compare labels and delta_O instead of timing")
-    ap.add_argument("--previous-closing-edge", action="store_true")
+    ap.add_argument("--previous-closing-edge", action="store_true", help="build this checkout with the boundary-probe rule before commit 22afaf2")
     args = ap.parse_args(argv)
     if not os.path.isdir(os.path.join(args.other, "model", "octree")):
         print(f"octree_versions: no model/octree under {args.other}", file=sys.stderr)

@@ -19,7 +19,6 @@ and noise), the same for both sides.  Bundles are exported to a temporary folder
 
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
 import sys
@@ -48,6 +47,7 @@ from model.octree import build_octree
 from model.octree.batch import merge_octrees, split_octree
 from model.octree.patches import patches_to_mesh
 from model.preprocess import ImageSpec, prepare_image
+from model.cli import command_parser
 
 TARGET_SPEEDUP, TARGET_BOOKKEEPING = 2.0, 0.20
 
@@ -184,7 +184,7 @@ def report(rows: list[dict]) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m bench.onnx_decode", description=__doc__.splitlines()[0])
+    ap = command_parser("python -m bench.onnx_decode", __doc__, ['python -m bench.onnx_decode --repeats 20'])
     ap.add_argument("--image", default="models/checkpoints/image-to-shape",
                     help="image model checkpoint or run folder (default: the shipped one); '' to skip")
     ap.add_argument("--image-bundle", default=None, help="its exported bundle (default: export to a temp folder)")

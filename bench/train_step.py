@@ -22,6 +22,7 @@ import sys
 import time
 
 import numpy as np
+from model.cli import command_parser
 
 
 TASKS = {"autoencoder": ("aocnn", "ocnn-patch"), "classify": ("aocnn", "ocnn")}
@@ -70,7 +71,8 @@ def measure(task: str, arch: str, depth: int, batch: int, steps: int, threads: i
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = command_parser("python -m bench.train_step", __doc__, [
+        "python -m bench.train_step --depths 5 6 7 --task classify"])
     ap.add_argument("--depths", type=int, nargs="+", default=[6, 7, 8], help="octree depths (default 6 7 8)")
     ap.add_argument("--batch", type=int, default=8, help="shapes per step, one per category in turn (default 8)")
     ap.add_argument("--steps", type=int, default=5, help="timed steps after a warm-up, median taken (default 5)")

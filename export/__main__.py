@@ -10,8 +10,8 @@ each graph loads and has the inputs and outputs model.json states, and decodes o
 
 from __future__ import annotations
 
-import argparse
 import sys
+from model.cli import command_parser
 
 
 def verify(path: str) -> dict:
@@ -42,7 +42,9 @@ def verify(path: str) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m export", description=__doc__.splitlines()[0])
+    ap = command_parser("python -m export", __doc__, [
+        "python -m export models/checkpoints/image-to-shape --out my-bundle",
+        "python -m export --verify models/bundles/image-to-shape"])
     ap.add_argument("source", nargs="?", help="a checkpoint folder (model.pt + model.json) or a training run "
                     "folder (checkpoint.pt) to export")
     ap.add_argument("--out", help="the bundle folder to write (required with SOURCE)")

@@ -10,7 +10,6 @@ model.json updated (checksums, ``export.quantized``).  Whether it pays is measur
 
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 import sys
@@ -20,6 +19,7 @@ from pathlib import Path
 from model.files import json_text, sha256_file, write_atomic
 
 from .bundle import MANIFEST, BundleError, load_bundle
+from model.cli import command_parser
 
 GROUPS = {"encoder": ("image_encoder", "octree_encoder"), "decoder": ("decoder_",), "all": ("",)}
 
@@ -55,7 +55,8 @@ def quantize(bundle_dir: str | Path, out: str | Path, group: str = "all") -> lis
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m export.quantize", description=__doc__.splitlines()[0])
+    ap = command_parser("python -m export.quantize", __doc__, [
+        "python -m export.quantize models/bundles/image-to-shape --out q-bundle --graphs encoder"])
     ap.add_argument("bundle", help="the bundle folder to quantise")
     ap.add_argument("--out", required=True, help="the quantised bundle folder to write")
     ap.add_argument("--graphs", choices=sorted(GROUPS), default="all", help="which graphs (default all)")

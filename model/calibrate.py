@@ -13,7 +13,6 @@ layer: evaluation, export and serving then need no extra setting.
 
 from __future__ import annotations
 
-import argparse
 import shutil
 import sys
 from pathlib import Path
@@ -28,6 +27,7 @@ from .octree import SPLIT
 from .checkpoint import load_model
 from .train.config import load_checkpoint
 from .train.tasks import TASKS
+from .cli import command_parser
 
 BIASES = np.round(np.arange(-4.0, 4.0001, 0.05), 2)
 
@@ -107,7 +107,8 @@ def calibrate(run: str, data: str, out: str, split: str = "val") -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m model.calibrate", description=__doc__.splitlines()[0])
+    ap = command_parser("python -m model.calibrate", __doc__, [
+        "python -m model.calibrate runs/img --data data/procedural --out runs/img-cal"])
     ap.add_argument("run", help="run folder of an aocnn decoder (autoencoder or image model)")
     ap.add_argument("--data", required=True, help="dataset folder the run was trained on")
     ap.add_argument("--out", required=True, help="folder for the calibrated copy of the run")

@@ -13,7 +13,6 @@ the complete shape's cube, category mean) and by the missing part's distance to 
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -35,6 +34,7 @@ from .octree.batch import merge_octrees
 from .octree.metrics import chamfer_distance, mean_squared_distance, missing_part
 from .octree.pointcloud import normalization_of
 from .results_table import paired_difference
+from .cli import command_parser
 
 
 MIN_POINTS = 100
@@ -177,7 +177,8 @@ def markdown(results: dict, labels: list[str]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m model.degrade", description=__doc__.splitlines()[0])
+    ap = command_parser("python -m model.degrade", __doc__, [
+        "python -m model.degrade runs/complete runs/complete-ocnn --data data/procedural --out degrade.json"])
     ap.add_argument("runs", nargs="+", help="completion run or checkpoint folders")
     ap.add_argument("--data", required=True, help="the procedural dataset the runs were trained on")
     ap.add_argument("--out", required=True, help="results JSON")

@@ -23,7 +23,6 @@ structure decodes with the true statuses (separating structure errors from patch
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import os
 import sys
@@ -46,6 +45,7 @@ from .train.config import TrainConfig
 from .train.images import image_batch
 from .train.completion import truth_view
 from .train.tasks import TASKS
+from .cli import command_parser
 
 
 ORACLES = ("none", "structure", "all")
@@ -290,7 +290,9 @@ def status_summary(confusion: np.ndarray) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m model.evaluate", description=__doc__.splitlines()[0])
+    ap = command_parser("python -m model.evaluate", __doc__, [
+        "python -m model.evaluate runs/aocnn --data data/procedural --split test --out results.json",
+        "python -m model.evaluate models/checkpoints/completion --data data/procedural --bundle models/bundles/completion --out c.json"])
     ap.add_argument("run", help="run folder of python -m model.train (holds checkpoint.pt) or a checkpoint "
                     "folder (model.pt + model.json)")
     ap.add_argument("--data", required=True, help="dataset folder built by python -m model.data build")

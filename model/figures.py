@@ -10,7 +10,6 @@ patches as grid meshes), and the first run's patches coloured by octree depth.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 from pathlib import Path
@@ -27,6 +26,7 @@ from .networks import AtlasNetDecoder, OctreeDecoder
 from .octree.patches import DEPTH_COLORS, patches_to_mesh
 from .train.images import eval_view
 from .train.tasks import TASKS
+from .cli import command_parser
 
 TILE = 160
 VIEW = dict(azimuth_deg=35.0, elevation_deg=25.0, distance=2.6)
@@ -127,7 +127,8 @@ def figure(data: str, runs: list[tuple[str, str]], split: str = "test", shapes: 
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m model.figures", description=__doc__.splitlines()[0])
+    ap = command_parser("python -m model.figures", __doc__, [
+        "python -m model.figures --data data/procedural --runs aocnn=runs/img psg=runs/img-psg --out fig.png"])
     ap.add_argument("--data", required=True, help="dataset folder the runs were trained on")
     ap.add_argument("--runs", nargs="+", required=True, help="NAME=RUN_FOLDER, the first one is coloured by depth")
     ap.add_argument("--out", required=True, help="PNG to write")

@@ -10,7 +10,6 @@ The recipe (dataset settings, training settings, seed) is fixed per model in :da
 
 from __future__ import annotations
 
-import argparse
 import json
 import shlex
 import sys
@@ -18,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .files import atomic_path, json_text, sha256_file, write_atomic
+from .cli import command_parser
 
 CHECKPOINT_FORMAT = 1
 
@@ -105,7 +105,9 @@ def package(run: Path, data: Path, results: dict, out: Path, recipe: Recipe, com
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m model.release", description=__doc__.splitlines()[0])
+    ap = command_parser("python -m model.release", __doc__, [
+        "python -m model.release completion --workdir work/completion",
+        "python -m model.release image --workdir work/image --workers 2"])
     ap.add_argument("model", choices=sorted(RECIPES), help="which shipped model to make")
     ap.add_argument("--workdir", required=True, help="folder for the dataset, the run and its evaluation")
     ap.add_argument("--out", default=None, help="where model.pt and model.json go "

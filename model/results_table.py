@@ -13,7 +13,6 @@ value and are left out of its pairs; the table counts them.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -22,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from .cli import command_parser
 
 
 @dataclass
@@ -103,7 +103,9 @@ def paired_difference(base: dict, other: dict, draws: int = 10_000, seed: int = 
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m model.results_table", description=__doc__.splitlines()[0])
+    ap = command_parser("python -m model.results_table", __doc__, [
+        "python -m model.results_table aocnn.json ocnn-patch.json --bootstrap 10000",
+        "python -m model.results_table img.json img-psg.json --icp"])
     ap.add_argument("results", nargs="+", help="results JSONs of python -m model.evaluate; the first is the base")
     ap.add_argument("--bootstrap", type=int, default=10_000, help="bootstrap draws for the intervals (default 10000)")
     ap.add_argument("--icp", action="store_true", help="compare the Chamfer distances after ICP alignment")

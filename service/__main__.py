@@ -1,4 +1,6 @@
-"""Run the service: ``python -m service`` (or ``aocnn-serve``); settings from AOCNN_* variables."""
+"""Run the Adaptive O-CNN inference service (FastAPI + onnxruntime, no torch) with the bundles of
+a models folder; every setting is an AOCNN_* environment variable (--settings lists them), and
+the options override three of them.  Also installed as ``aocnn-serve``."""
 
 from __future__ import annotations
 
@@ -6,22 +8,18 @@ import sys
 
 
 def main(argv: list[str] | None = None) -> int:
-    import argparse
-
     import uvicorn
+
+    from model.cli import command_parser
 
     from pydantic import ValidationError
 
     from .engine import StartupError
     from .settings import Settings, describe_error, settings_table
 
-    ap = argparse.ArgumentParser(
-        prog="python -m service", formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="Run the Adaptive O-CNN inference service (FastAPI + onnxruntime, no torch) with the bundles "
-                    "of a models folder. Every setting is an AOCNN_* environment variable (--settings lists "
-                    "them); the options below override three of them.",
-        epilog="example:\n  AOCNN_CONCURRENCY=1 AOCNN_THREADS=2 python -m service --port 9000\n"
-               "  then open http://127.0.0.1:9000/ (the demo page) or /docs (the API)")
+    ap = command_parser("python -m service", __doc__, [
+        "python -m service                      # http://127.0.0.1:8000/ (demo page), /docs (the API)",
+        "AOCNN_CONCURRENCY=1 AOCNN_THREADS=2 python -m service --port 9000", "python -m service --settings"])
     ap.add_argument("--host", default=None, help="bind address (default AOCNN_HOST or 127.0.0.1)")
     ap.add_argument("--port", type=int, default=None, help="port (default AOCNN_PORT or 8000)")
     ap.add_argument("--models-dir", default=None, help="bundles folder (default AOCNN_MODELS_DIR or models/bundles)")

@@ -9,8 +9,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("model", "export", "service")
-BASE = {"model.files", "model.formats"}
-"""Modules below everything: file writing and format recognition, importing nothing of the project."""
+BASE = {"model.files", "model.formats", "model.cli"}
+"""Modules below everything (file writing, format recognition, the command lines' form), importing
+nothing of the project."""
 
 
 def modules() -> dict[str, Path]:

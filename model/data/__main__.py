@@ -1,4 +1,5 @@
-"""Command line for the training data.
+"""Build a training dataset (procedural shapes, or a ModelNet40, ShapeNet or 3D-R2N2 layout on
+disk) as per-shape records with a manifest, in one process or as shards; merge shard builds.
 
     python -m model.data build --out DIR --per-category N --depth D [--seed S] [--workers K]
                               [--categories chair table ...] [--views 24] [--partial 2]
@@ -23,10 +24,14 @@ import time
 from ..octree.build import MAX_BUILD_DEPTH
 from .dataset import SOURCES, BuildConfig, Shard, build_dataset, layout_tasks, merge_shards, procedural_tasks
 from .shapes import CATEGORIES
+from ..cli import command_parser
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(prog="python -m model.data", description=__doc__.splitlines()[0])
+    ap = command_parser("python -m model.data", __doc__, [
+        "python -m model.data build --out data/procedural --per-category 100 --depth 6 --workers 2",
+        "python -m model.data build --out data/part --per-category 800 --depth 7 --shard 0/8",
+        "python -m model.data merge --out data/all data/part0 data/part1"])
     sub = ap.add_subparsers(dest="command", required=True)
     b = sub.add_parser("build", help="build (or resume) a dataset of per-shape records and a manifest")
     b.add_argument("--out", required=True, help="dataset folder (created; a partial build there is resumed)")

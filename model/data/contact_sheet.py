@@ -6,7 +6,6 @@ Run ``python -m model.data.contact_sheet --out DIR``.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +13,7 @@ from PIL import Image, ImageDraw
 
 from .render import render
 from .shapes import CATEGORIES, generate
+from ..cli import command_parser
 
 
 def sheet(
@@ -62,12 +62,13 @@ def write_sheets(out: Path, n_per_category: int = 12, overview_n: int = 6, seed:
 
 def main(argv: list[str] | None = None) -> None:
     """Command-line entry point: write contact sheets into --out."""
-    p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--n", type=int, default=12, help="shapes per category sheet")
-    p.add_argument("--overview-n", type=int, default=6, help="shapes per category on the overview")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--tile", type=int, default=128)
+    p = command_parser("python -m model.data.contact_sheet", __doc__, [
+        "python -m model.data.contact_sheet --out sheets/"])
+    p.add_argument("--out", type=Path, required=True, help="folder for the sheets (PNG)")
+    p.add_argument("--n", type=int, default=12, help="shapes per category sheet (default 12)")
+    p.add_argument("--overview-n", type=int, default=6, help="shapes per category on the overview (default 6)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the shapes (default 0)")
+    p.add_argument("--tile", type=int, default=128, help="side of each rendered tile in pixels (default 128)")
     args = p.parse_args(argv)
     for path in write_sheets(args.out, args.n, args.overview_n, args.seed, args.tile):
         print(path)

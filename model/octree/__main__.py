@@ -19,12 +19,15 @@ from .errors import OctreeInputError
 from .inputs import load_input
 from .octree import LEAF, Octree
 from .patches import patches_to_mesh
+from ..cli import command_parser
 
 OUTPUT_EXTENSIONS = (".ply", ".glb", ".obj", ".stl", ".off")
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(prog="python -m model.octree", description=__doc__.splitlines()[0])
+    ap = command_parser("python -m model.octree", __doc__, [
+        "python -m model.octree examples/airplane.obj --depth 7 --out airplane_patches.ply --stats airplane.json --color-by-depth",
+        "python -m model.octree scan.xyz --depth 6 --full --out scan_octree.glb"])
     ap.add_argument("input", help="mesh (obj, off, ply, stl, glb) or point cloud (ply, xyz, txt, npy, npz)")
     ap.add_argument("--depth", type=int, required=True, help=f"max depth D (1..{MAX_BUILD_DEPTH})")
     ap.add_argument("--full", action="store_true", help="build the full O-CNN octree instead of the adaptive one")

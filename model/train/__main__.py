@@ -27,6 +27,7 @@ from .loop import TrainConfig, Trainer
 from ..networks.classifier import CLASSIFIER_ARCHS
 from .classify import UP_AXES
 from .tasks import COMPLETION_ARCHS
+from ..cli import command_parser
 
 
 def common_options() -> argparse.ArgumentParser:
@@ -61,7 +62,10 @@ def common_options() -> argparse.ArgumentParser:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(prog="python -m model.train", description=__doc__.splitlines()[0])
+    ap = command_parser("python -m model.train", __doc__, [
+        "python -m model.train autoencoder --data data/procedural --depth 6 --arch aocnn --out runs/aocnn --iters 4000",
+        "python -m model.train image --data data/procedural --depth 6 --encoder resnet18 --decoder aocnn --out runs/img",
+        "python -m model.train classify --data data/procedural --depth 6 --arch aocnn --out runs/cls --batch-size 16"])
     sub = ap.add_subparsers(dest="task", required=True)
     common = common_options()
     a = sub.add_parser("autoencoder", parents=[common], help="train a 3D autoencoder (paper section 5.2)")

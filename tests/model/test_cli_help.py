@@ -1,4 +1,5 @@
-"""Every command-line option says what it does and, when it has one, its default."""
+"""Every command line's help reads in full: its ``python -m`` name, a whole description, examples
+that use that name; every option says what it does and, when it has one, its default."""
 
 import argparse
 
@@ -63,7 +64,14 @@ def _mains():
     from bench.octree_scaling import main as bench_scaling_main
     from bench.train_step import main as bench_step_main
     from model.degrade import main as degrade_main
-    return {"model.train": train_main, "model.evaluate": evaluate_main, "model.data": data_main,
+    from model.data.contact_sheet import main as sheet_main
+    from bench.conv import main as bench_conv_main
+    from bench.octree_build import main as bench_build_main
+    from bench.octree_label_changes import main as bench_labels_main
+    from bench.octree_versions import main as bench_versions_main
+    return {"model.data.contact_sheet": sheet_main, "bench.conv": bench_conv_main,
+            "bench.octree_build": bench_build_main, "bench.octree_label_changes": bench_labels_main,
+            "bench.octree_versions": bench_versions_main, "model.train": train_main, "model.evaluate": evaluate_main, "model.data": data_main,
             "model.octree": octree_main, "model.results_table": table_main, "model.figures": figures_main,
             "model.release": release_main, "model.calibrate": calibrate_main, "export": export_main,
             "export.quantize": quantize_main, "service": service_main, "bench.onnx_decode": bench_onnx_main,
@@ -74,3 +82,16 @@ def _mains():
 @pytest.mark.parametrize("name", sorted(_mains()))
 def test_every_option_has_a_description_and_states_its_default(name):
     assert undocumented(parser_of(_mains()[name], [])) == []
+
+
+@pytest.mark.parametrize("name", sorted(_mains()))
+def test_help_names_the_command_describes_it_whole_and_gives_examples(name):
+    parser = parser_of(_mains()[name], [])
+    assert parser.prog == f"python -m {name}"
+    text = parser.description or ""
+    assert len(text) > 30 and text.rstrip().endswith((".", ")")), text
+    assert "``" not in text
+    examples = (parser.epilog or "").splitlines()
+    assert examples[0] == "examples:" and all(f"python -m {name}" in e for e in examples[1:] if "python" in e)
+    assert any(f"python -m {name}" in e for e in examples[1:])
+    assert "usage: python -m" in parser.format_help()
