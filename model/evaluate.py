@@ -145,8 +145,19 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     loaded = load_model(run)
     model, cfg = loaded.model, loaded.config
     cfg = dataclasses.replace(cfg, data=data)          # the dataset to evaluate on (not the training one)
+    runtime = None
+    if bundle is not None:
+        from export.bundle import BundleError, load_bundle
+        from export.runtime import Runtime
+        try:
+            runtime = Runtime(load_bundle(bundle))
+        except BundleError as exc:
+            raise ValueError(f"--bundle: {exc}") from None
+        want = {"image": "image-to-shape"}.get(cfg.task, cfg.task)
+        if runtime.bundle.task != want:
+            raise ValueError(f"--bundle {bundle} serves {runtime.bundle.task}, but {run} is a {cfg.task} model")
     if cfg.task == "classify":
-        return evaluate_classifier(model, cfg, run, split, limit)
+        return evaluate_classifier(model, cfg, run, split, limit, runtime=runtime, bundle=bundle)
     octree_decoder = isinstance(model.decoder, OctreeDecoder)
     if oracle != "none" and not octree_decoder:
         raise ValueError("--oracle needs an octree decoder")
@@ -156,11 +167,6 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         except OSError as exc:
             raise ValueError(f"cannot create --mesh-dir {mesh_dir}: {exc.strerror}") from None
     task = TASKS[cfg.task]
-    runtime = None
-    if bundle is not None:
-        from export.bundle import load_bundle
-        from export.runtime import Runtime
-        runtime = Runtime(load_bundle(bundle))
     completion = cfg.task == "completion"
     extra = {"normals": normals} if completion else {}
     records = task.dataset(cfg, split, seed, points=20_000, limit=limit, **extra)
@@ -239,10 +245,11 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
 
 
 def evaluate_classifier(model, cfg: TrainConfig, run: str, split: str = "test", limit: int | None = None,
-                        batch_size: int = 16) -> dict:
+                        batch_size: int = 16, runtime=None, bundle: str | None = None) -> dict:
     """Accuracy of a classifier (loaded by :func:`evaluate`): on each shape as built (rotation 0)
     and voted over the 12 rotations about the up axis (mean of the softmax), per category, with
-    the confusion matrix."""
+    the confusion matrix.  ``runtime``: the exported bundle's onnxruntime sessions run instead of
+    the torch model (``bundle`` is its folder, reported)."""
     from .octree.geometry import ROTATIONS
 
     task = TASKS[cfg.task]
@@ -254,7 +261,8 @@ def evaluate_classifier(model, cfg: TrainConfig, run: str, split: str = "test", 
             idx = np.arange(s, min(len(records), s + batch_size))
             for k in range(ROTATIONS):
                 octree, _ = records.batch(idx, k)
-                probs[k, idx] = torch.softmax(model.logits(OctreeTensors.from_octree(octree)), 1).numpy()
+                probs[k, idx] = (runtime.classify(runtime.encode_octree(octree)) if runtime is not None else
+                                 torch.softmax(model.logits(OctreeTensors.from_octree(octree)), 1).numpy())
     truth = records.labels
     single, voted = probs[0].argmax(1), probs.mean(0).argmax(1)
     per_rotation = (probs.argmax(2) == truth).mean(1)
@@ -265,7 +273,7 @@ def evaluate_classifier(model, cfg: TrainConfig, run: str, split: str = "test", 
                    "voted_accuracy": float((voted[truth == i] == i).mean()) if (truth == i).any() else None}
                for i, c in enumerate(cfg.categories)}
     return {"run": str(run), "task": cfg.task, "arch": cfg.arch, "depth": cfg.depth, "split": split,
-            "shapes": len(records), "classes": cfg.categories,
+            "bundle": bundle, "shapes": len(records), "classes": cfg.categories,
             "accuracy": float((single == truth).mean()), "voted_accuracy": float((voted == truth).mean()),
             "accuracy_per_rotation": per_rotation.round(4).tolist(), "per_category": per_cat,
             "confusion": confusion.tolist(),

@@ -5,7 +5,7 @@
 Every file is written by ``python -m model.evaluate`` on the same split.  Besides the per-category
 table, each result after the first is compared with the first shape by shape: the difference of
 category means with a 95% bootstrap interval (shapes resampled within categories) and how many
-shapes each side wins, so that a gap can be told from test-set noise.  ``--icp`` compares the Chamfer distances after
+shapes each side wins and how many tie, so that a gap can be told from test-set noise.  ``--icp`` compares the Chamfer distances after
 ICP alignment (results evaluated with ``--icp``); ``--missing`` compares completion's
 missing-part distance.  Completion results get a last row: the partial input itself.  Shapes a model decoded to nothing have no
 value and are left out of its pairs; the table counts them.
@@ -26,13 +26,15 @@ from .cli import command_parser
 
 @dataclass
 class PairedDifference:
-    """Category-mean Chamfer of ``other`` minus ``base`` (x1e3), over the shapes both evaluated."""
+    """Category-mean Chamfer of ``other`` minus ``base`` (x1e3), over the shapes both evaluated;
+    per shape, who is better (a lower value) or neither: ``base_wins + other_wins + ties == shapes``."""
 
     mean: float
     low: float
     high: float
     base_wins: int
     other_wins: int
+    ties: int
     shapes: int
 
 
@@ -99,7 +101,7 @@ def paired_difference(base: dict, other: dict, draws: int = 10_000, seed: int = 
     low, high = np.percentile(boot, [2.5, 97.5])
     all_d = np.concatenate(list(diffs_by_cat.values()))
     return PairedDifference(mean, float(low), float(high), int((all_d > 0).sum()), int((all_d < 0).sum()),
-                            len(common))
+                            int((all_d == 0).sum()), len(common))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -126,11 +128,11 @@ def main(argv: list[str] | None = None) -> int:
             what = ("Chamfer x1e3 after ICP" if args.icp else "missing part's distance x1e3" if args.missing
                     else "Chamfer x1e3")
             print(f"\nPaired against {labels[0]} (other − base, {what} category mean, 95% bootstrap):")
-            print("| run | difference | 95% interval | base better / other better | shapes |\n|---|---|---|---|---|")
+            print("| run | difference | 95% interval | base better / other better / tie | shapes |\n|---|---|---|---|---|")
             for label, r in zip(labels[1:], results[1:]):
                 d = paired_difference(results[0], r, args.bootstrap, metric=metric)
                 print(f"| {label} | {d.mean:+.3f} | [{d.low:+.3f}, {d.high:+.3f}] | "
-                      f"{d.base_wins} / {d.other_wins} | {d.shapes} |")
+                      f"{d.base_wins} / {d.other_wins} / {d.ties} | {d.shapes} |")
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

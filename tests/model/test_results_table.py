@@ -24,10 +24,17 @@ def test_paired_difference_is_the_difference_of_category_means_with_a_covering_i
     d = paired_difference(results(base), results(shift), draws=2000)
     assert d.mean == pytest.approx((0.5 - 0.1) / 2)
     assert d.low == pytest.approx(0.2) and d.high == pytest.approx(0.2)   # constant shifts: no spread
-    assert (d.base_wins, d.other_wins, d.shapes) == (30, 10, 40)
+    assert (d.base_wins, d.other_wins, d.ties, d.shapes) == (30, 10, 0, 40)
     noisy = {"a": [v + rng.normal(0, 0.3) for v in base["a"]], "b": base["b"]}
     n = paired_difference(results(base), results(noisy), draws=4000)
     assert n.low < n.mean < n.high and n.high - n.low > 0.05
+
+
+def test_ties_are_counted_apart_from_wins():
+    base = {"a": [1.0, 2.0, 3.0, 4.0]}
+    other = {"a": [1.0, 2.5, 2.0, 4.0]}                  # equal, worse, better, equal
+    d = paired_difference(results(base), results(other), draws=200)
+    assert (d.base_wins, d.other_wins, d.ties, d.shapes) == (1, 1, 2, 4)
 
 
 def test_table_and_command(tmp_path, capsys):
@@ -38,7 +45,7 @@ def test_table_and_command(tmp_path, capsys):
     pb.write_text(json.dumps(b))
     assert main([str(pa), str(pb), "--bootstrap", "200"]) == 0
     out = capsys.readouterr().out
-    assert "| b | +0.500 | [+0.500, +0.500] | 2 / 0 | 2 |" in out
+    assert "| b | +0.500 | [+0.500, +0.500] | 2 / 0 / 0 | 2 |" in out
     pb.write_text("{}")
     assert main([str(pa), str(pb)]) == 2
     assert "no per-shape rows" in capsys.readouterr().err
@@ -62,5 +69,5 @@ def test_completion_tables_end_with_the_partial_input_and_compare_the_missing_pa
     pa.write_text(json.dumps(a))
     pb.write_text(json.dumps(b))
     assert main([str(pa), str(pb), "--missing", "--bootstrap", "200"]) == 0
-    assert "| b | +0.500 | [+0.500, +0.500] | 2 / 0 | 2 |" in capsys.readouterr().out
+    assert "| b | +0.500 | [+0.500, +0.500] | 2 / 0 / 0 | 2 |" in capsys.readouterr().out
     assert main([str(pa), str(pb), "--missing", "--icp"]) == 2

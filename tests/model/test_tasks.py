@@ -123,6 +123,17 @@ def test_classify_trains_on_rotations_resumes_and_votes(tiny_data, tmp_path):
     assert np.sum(res["confusion"]) == res["shapes"]
     assert res["voted_accuracy"] == pytest.approx(np.trace(res["confusion"]) / res["shapes"])
 
+    # --bundle runs the exported classifier in onnxruntime and says so; a bundle of another task is refused
+    from export.exporter import export
+    export(tmp_path / "a", tmp_path / "bundle")
+    via = tmp_path / "cls-bundle.json"
+    assert evaluate_main([str(tmp_path / "a"), "--data", str(tiny_data), "--split", "val", "--out", str(via),
+                          "--bundle", str(tmp_path / "bundle")]) == 0
+    onnx = json.loads(via.read_text())
+    assert onnx["bundle"] == str(tmp_path / "bundle") and res["bundle"] is None
+    assert [r["voted"] for r in onnx["per_shape"]] == [r["voted"] for r in res["per_shape"]]
+    assert onnx["accuracy_per_rotation"] == res["accuracy_per_rotation"]
+
 
 @pytest.mark.parametrize("task, extra, needle", [
     ("completion", ["--arch", "psg"], "invalid choice"),
