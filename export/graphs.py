@@ -130,7 +130,23 @@ def _export(module: nn.Module, args: tuple, inputs: dict[str, tuple], outputs: d
         for dim, axis in zip(value.type.tensor_type.shape.dim, shape):
             if isinstance(axis, str):
                 dim.dim_param = axis
+    strip_debug_info(proto)
     return proto.SerializeToString()
+
+
+def strip_debug_info(proto) -> None:
+    """Remove what the exporter records about the machine that ran it: each node's source stack
+    trace (absolute paths of this checkout and of site-packages), FX names and scopes, and the
+    exported program's signatures.  What remains is the graph itself, so the same checkpoint
+    exported with the same package versions gives the same bytes on any machine."""
+    graph = proto.graph
+    for items in (graph.node, graph.value_info, graph.input, graph.output, graph.initializer):
+        for item in items:
+            del item.metadata_props[:]
+            item.doc_string = ""
+    del graph.metadata_props[:]
+    del proto.metadata_props[:]
+    graph.doc_string = proto.doc_string = ""
 
 
 def _table(n: int, generator: torch.Generator) -> torch.Tensor:

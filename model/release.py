@@ -66,25 +66,27 @@ RECIPES: dict[str, Recipe] = {
 }
 
 
-def package(run: Path, data: Path, results: dict, out: Path, recipe: Recipe, command: list[str]) -> dict:
-    """Write ``out/model.pt`` (the plain state_dict) and ``out/model.json`` (provenance)."""
+def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]) -> dict:
+    """Write ``out/model.pt`` (the plain state_dict in half precision) and ``out/model.json``
+    (provenance; its evaluation is added by :func:`record_evaluation`, measured on exactly these
+    weights)."""
     import torch
 
-    from .train.config import load_checkpoint
+    from .train.config import half_precision, load_checkpoint
 
     state = load_checkpoint(run / "checkpoint.pt")
     out.mkdir(parents=True, exist_ok=True)
     weights = out / "model.pt"
 
     with atomic_path(weights) as tmp:
-        torch.save(state["model"], tmp)
+        torch.save(half_precision(state["model"]), tmp)
     manifest = json.loads((data / "manifest.json").read_text())
-    figures = {k: v for k, v in results.items() if k not in ("per_shape", "run")}
     meta = {
         "format": CHECKPOINT_FORMAT,
         "task": recipe.task,
         "weights": weights.name,
         "weights_sha256": sha256_file(weights),
+        "weights_dtype": "float16",
         "parameters": int(sum(v.numel() for v in state["model"].values() if v.is_floating_point())),
         "config": {k: v for k, v in state["config"].items() if k not in ("data", "out", "progress")},
         "steps": state["step"],
@@ -98,8 +100,17 @@ def package(run: Path, data: Path, results: dict, out: Path, recipe: Recipe, com
                  "build_command": "python -m model.data build " + " ".join(recipe.build),
                  "splits": manifest.get("splits"),
                  "manifest_sha256": sha256_file(data / "manifest.json")},
-        "evaluation": figures,
+        "evaluation": None,
     }
+    write_atomic(out / "model.json", json_text(meta).encode())
+    return meta
+
+
+def record_evaluation(out: Path, results: dict) -> dict:
+    """Add the test figures (``python -m model.evaluate`` of the checkpoint folder ``out``) to its
+    model.json, per-shape rows left out."""
+    meta = json.loads((out / "model.json").read_text())
+    meta["evaluation"] = {k: v for k, v in results.items() if k not in ("per_shape", "run")}
     write_atomic(out / "model.json", json_text(meta).encode())
     return meta
 
@@ -135,12 +146,15 @@ def main(argv: list[str] | None = None) -> int:
                                *(["--teacher", str(teacher)] if recipe.teacher else [])]))
     if recipe.calibrate:
         steps.append((calibrate_main, [str(run), "--data", str(data), "--out", str(final)]))
-    steps.append((evaluate_main, [str(final), "--data", str(data), "--out", str(results_path), *recipe.evaluate]))
     for fn, fn_args in steps:
         code = fn(fn_args)
         if code:
             return code
-    meta = package(final, data, json.loads(results_path.read_text()), out, recipe, sys.argv[1:] if argv is None else argv)
+    package(final, data, out, recipe, sys.argv[1:] if argv is None else argv)
+    code = evaluate_main([str(out), "--data", str(data), "--out", str(results_path), *recipe.evaluate])
+    if code:
+        return code
+    meta = record_evaluation(out, json.loads(results_path.read_text()))
     ev = meta["evaluation"]
     figure = (f"test accuracy {ev['accuracy']:.4f} ({ev['voted_accuracy']:.4f} voted over 12 rotations)"
               if "voted_accuracy" in ev else f"test Chamfer x1e3 {ev['chamfer_x1e3_category_mean']:.3f}")

@@ -22,6 +22,7 @@ import sys
 import time
 
 from ..octree.build import MAX_BUILD_DEPTH
+from .compare import compare_datasets
 from .dataset import SOURCES, BuildConfig, Shard, build_dataset, layout_tasks, merge_shards, procedural_tasks
 from .shapes import CATEGORIES
 from ..cli import command_parser
@@ -31,7 +32,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = command_parser("python -m model.data", __doc__, [
         "python -m model.data build --out data/procedural --per-category 100 --depth 6 --workers 2",
         "python -m model.data build --out data/part --per-category 800 --depth 7 --shard 0/8",
-        "python -m model.data merge --out data/all data/part0 data/part1"])
+        "python -m model.data merge --out data/all data/part0 data/part1",
+        "python -m model.data compare data/procedural other-machine/procedural"])
     sub = ap.add_subparsers(dest="command", required=True)
     b = sub.add_parser("build", help="build (or resume) a dataset of per-shape records and a manifest")
     b.add_argument("--out", required=True, help="dataset folder (created; a partial build there is resumed)")
@@ -57,12 +59,18 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     m.add_argument("--out", required=True, help="dataset folder for the merged manifest (records are copied "
                    "there from shard folders elsewhere)")
     m.add_argument("shards", nargs="+", help="folders holding manifest.shard-K-of-N.json and their records")
+    c = sub.add_parser("compare", help="compare two builds of one dataset record by record (same structure, "
+                       "and how far floating values differ); exit status 1 when the structure differs")
+    c.add_argument("first", help="a dataset folder")
+    c.add_argument("second", help="another build of the same dataset")
     return ap.parse_args(argv)
 
 
 def run(args: argparse.Namespace) -> dict:
     if args.command == "merge":
         return merge_shards(args.out, args.shards)
+    if args.command == "compare":
+        return {"comparison": compare_datasets(args.first, args.second)}
     shard = Shard.parse(args.shard) if args.shard else None
     if not 2 <= args.depth <= MAX_BUILD_DEPTH:
         raise ValueError(f"--depth must be in 2..{MAX_BUILD_DEPTH}, got {args.depth}")
@@ -101,6 +109,15 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError, NotADirectoryError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if "comparison" in manifest:
+        c = manifest["comparison"]
+        print(f"{c.compared} records compared: {c.same_bytes} byte-identical"
+              + (f"; {len(c.missing)} in one build only" if c.missing else ""))
+        for name, d in c.arrays.items():
+            print(f"  {name}: differs in {d.records} records" + (f", max |difference| {d.max_abs:.3g}" if d.max_abs else "")
+                  + (f", {d.shape_or_integer} in shape or integer values" if d.shape_or_integer else ""))
+        print("same structure (shapes and integer arrays)" if c.same_structure else "the structure differs")
+        return 0 if c.same_structure else 1
     n = len(manifest["records"])
     minutes = (time.perf_counter() - t) / 60
     print(f"{args.out}: {n} records ({manifest['splits']}), {minutes:.1f} min")

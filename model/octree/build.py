@@ -168,8 +168,10 @@ def _sorted_points(cube: np.ndarray, normals: np.ndarray, depth: int):
     ijk = np.clip((cube * res).astype(np.int64), 0, res - 1)
     key = morton.encode(ijk)
     # The order of points inside a voxel is part of the result: it sets the rounding of the sums
-    # and which points the spacing estimate's thinning keeps.  argsort's tie order is kept.
-    order = np.argsort(key)
+    # and which points the spacing estimate's thinning keeps.  A stable sort keeps the input's
+    # order there on every machine (the default sort's tie order depends on the CPU's SIMD
+    # level: with and without AVX-512 it gave other planes, and other labels near the threshold).
+    order = np.argsort(key, kind="stable")
     return np.take(cube.T, order, axis=1), np.take(normals.T, order, axis=1), key[order]
 
 

@@ -192,7 +192,7 @@ def cube_polygons(normal: np.ndarray, offset: np.ndarray, size: np.ndarray | flo
         av += rel * v[:, c, None]
     ang = np.arctan2(av, au)
     ang[~valid] = np.inf
-    order = np.argsort(ang, axis=1)[:, :MAX_POLYGON]
+    order = np.argsort(ang, axis=1, kind="stable")[:, :MAX_POLYGON]      # ties in input order everywhere
     count = np.minimum(count, MAX_POLYGON)
     last = np.take_along_axis(order, np.maximum(count - 1, 0)[:, None], axis=1)
     order = np.where(np.arange(MAX_POLYGON)[None] >= count[:, None], last, order)

@@ -99,6 +99,12 @@ def config_from_dict(saved: dict) -> TrainConfig:
     return TrainConfig(**{**LEGACY_DEFAULTS, **{k: v for k, v in saved.items() if k in known}})
 
 
+def half_precision(weights: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """A state dict with its floating tensors stored as float16 (how shipped checkpoints are kept:
+    half the bytes; :func:`read_run` returns them as float32, and bundles are exported from them)."""
+    return {k: v.half() if v.is_floating_point() else v for k, v in weights.items()}
+
+
 @dataclass
 class SavedRun:
     """A saved run's configuration, float32 weights and provenance (``meta``: a checkpoint folder's

@@ -1,6 +1,7 @@
 """The dataset build: records, manifest, resume after a kill, and real layouts in the same format."""
 
 import json
+import shutil
 import os
 import signal
 import subprocess
@@ -12,6 +13,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from model.data.__main__ import main
 from model.data.dataset import BuildConfig, build_dataset, layout_tasks, load_record, procedural_tasks
 from model.octree import LEAF
 
@@ -54,6 +56,8 @@ def test_build_is_deterministic_and_resume_skips_finished_records(tmp_path):
         a, b = load_record(tmp_path / "a" / t.relpath), load_record(tmp_path / "b" / t.relpath)
         for k in ("points", "adaptive_key", "full_plane", "images", "partial_points"):
             assert np.array_equal(a[k], b[k]), k
+    assert (tmp_path / "a" / "manifest.json").read_bytes() == (tmp_path / "b" / "manifest.json").read_bytes()
+    assert main(["compare", str(tmp_path / "a"), str(tmp_path / "b")]) == 0
     before = {t.relpath: os.stat(tmp_path / "a" / t.relpath).st_mtime_ns for t in tasks}
     (tmp_path / "a" / tasks[0].relpath).write_bytes(b"corrupt")     # a damaged record is rebuilt
     build_dataset(tmp_path / "a", tasks, SMALL, progress=False)
@@ -136,7 +140,6 @@ def test_cli_reports_bad_arguments_in_one_line(tmp_path):
 
 
 def test_two_shards_and_a_merge_equal_a_single_build_byte_for_byte(tmp_path):
-    from model.data.__main__ import main
     from model.data.dataset import Shard, merge_shards
 
     tasks = procedural_tasks(4, categories=("chair", "car", "lamp"))
@@ -158,7 +161,6 @@ def test_two_shards_and_a_merge_equal_a_single_build_byte_for_byte(tmp_path):
 
 
 def test_merge_refuses_missing_duplicate_foreign_or_damaged_shards(tmp_path, capsys):
-    from model.data.__main__ import main
     from model.data.dataset import Shard, merge_shards
 
     tasks = procedural_tasks(3, categories=("chair", "car"))
@@ -181,3 +183,26 @@ def test_merge_refuses_missing_duplicate_foreign_or_damaged_shards(tmp_path, cap
     for bad in ("3/3", "-1/2", "a/b", "1"):
         assert main(["build", "--out", str(tmp_path / "x"), "--per-category", "1", f"--shard={bad}"]) == 2
         assert "--shard must be K/N" in capsys.readouterr().err
+
+
+def test_compare_tells_rounding_from_structure(tmp_path, capsys):
+    from model.data.compare import compare_datasets
+    from model.data.dataset import write_npz_atomic
+
+    tasks = procedural_tasks(1, seed=4, categories=("chair", "car"))
+    build_dataset(tmp_path / "a", tasks, SMALL, progress=False)
+    shutil.copytree(tmp_path / "a", tmp_path / "b")
+    manifest = json.loads((tmp_path / "b" / "manifest.json").read_text())
+    row = manifest["records"][0]
+    arrays = load_record(tmp_path / "b" / row["path"]).arrays
+    arrays["full_plane"] = arrays["full_plane"] + np.float32(1e-6)          # rounding-sized
+    row["sha256"] = write_npz_atomic(tmp_path / "b" / row["path"], arrays)
+    (tmp_path / "b" / "manifest.json").write_text(json.dumps(manifest))
+    c = compare_datasets(tmp_path / "a", tmp_path / "b")
+    assert (c.compared, c.same_bytes, c.same_structure) == (2, 1, True)
+    assert set(c.arrays) == {"full_plane"} and 5e-7 < c.arrays["full_plane"].max_abs < 2e-6
+    arrays["adaptive_label"] = arrays["adaptive_label"][::-1].copy()          # another tree
+    row["sha256"] = write_npz_atomic(tmp_path / "b" / row["path"], arrays)
+    (tmp_path / "b" / "manifest.json").write_text(json.dumps(manifest))
+    assert main(["compare", str(tmp_path / "a"), str(tmp_path / "b")]) == 1
+    assert "adaptive_label: differs in 1 records, 1 in shape or integer values" in capsys.readouterr().out

@@ -137,3 +137,20 @@ def test_threads_follow_the_cgroup_quota_and_affinity(tmp_path, exported, monkey
     monkeypatch.setattr(rt, "available_cpus", lambda: 3)     # sessions get what the process may use
     runtime = Runtime(load_bundle(exported("aocnn")[2]))
     assert runtime.threads == 3
+
+
+def test_exporting_the_same_checkpoint_again_gives_the_same_bytes_and_no_machine_paths(exported, tmp_path):
+    """The exporter's debug records (source stack traces with this machine's paths, FX names) are
+    stripped, so a bundle is a function of the checkpoint and the package versions only."""
+    from export.exporter import export
+
+    _, _, folder = exported("classify-aocnn")
+    again = tmp_path / "again"
+    export(folder.parent / "checkpoint", again)
+    files = sorted(p.name for p in folder.iterdir())
+    assert files == sorted(p.name for p in again.iterdir()) and any(f.endswith(".onnx") for f in files)
+    for name in files:
+        assert (folder / name).read_bytes() == (again / name).read_bytes(), name
+        if name.endswith(".onnx"):
+            data = (folder / name).read_bytes()
+            assert b"site-packages" not in data and b".py\"" not in data and b"stack_trace" not in data, name

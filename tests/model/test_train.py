@@ -253,3 +253,26 @@ def test_image_encoder_regressed_onto_an_autoencoders_latents_uses_its_decoder(t
     assert img.size == (4 * TILE, 18 + 2 * TILE)
     with pytest.raises(ValueError, match="one task"):
         figure(str(tiny_data), [("s", str(tmp_path / "img")), ("t", str(tmp_path / "ae"))], split="train")
+
+
+def test_a_released_checkpoint_is_stored_in_half_precision_and_evaluated_as_stored(tiny_data, tmp_path):
+    """model.release packages the run's weights as float16; the checkpoint folder loads as float32
+    weights equal to the rounded ones, and its evaluation is recorded in model.json."""
+    from model.checkpoint import load_model
+    from model.evaluate import main as evaluate_main
+    from model.release import RECIPES, package, record_evaluation
+
+    Trainer(config(tiny_data, tmp_path / "run", iters=2)).run()
+    out = tmp_path / "shipped"
+    meta = package(tmp_path / "run", tiny_data, out, RECIPES["completion"], ["completion", "--workdir", "w"])
+    stored = torch.load(out / "model.pt", weights_only=True)
+    assert meta["weights_dtype"] == "float16" and meta["evaluation"] is None
+    assert {v.dtype for v in stored.values() if v.is_floating_point()} == {torch.float16}
+    trained = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["model"]
+    loaded = load_model(out).model.state_dict()
+    for k, v in trained.items():
+        assert loaded[k].dtype == v.dtype and torch.equal(loaded[k], v.half().to(v.dtype)), k
+    assert evaluate_main([str(out), "--data", str(tiny_data), "--split", "val", "--out", str(tmp_path / "e.json")]) == 0
+    meta = record_evaluation(out, json.loads((tmp_path / "e.json").read_text()))
+    assert meta["evaluation"]["shapes"] > 0 and "per_shape" not in meta["evaluation"]
+    assert load_model(out).meta["evaluation"] == meta["evaluation"]

@@ -242,7 +242,7 @@ def test_d_star_is_the_offset_from_the_octant_centre_in_units_of_sqrt3_half_h():
 @pytest.mark.parametrize("bad,msg", [
     ((np.zeros((2, 3)), None), "at least 3"),
     ((np.ones((10, 3)), None), "identical"),
-    ((np.c_[np.arange(10.0), np.zeros(10), np.zeros(10)], None), "collinear"),
+    ((np.c_[np.arange(10.0), np.zeros(10), np.zeros(10)], None), "on a line"),
     ((np.r_[np.random.default_rng(0).random((9, 3)), [[np.nan, 0, 0]]], None), "NaN"),
     ((np.r_[np.random.default_rng(0).random((9, 3)), [[np.inf, 0, 0]]], None), "infinite"),
     ((np.random.default_rng(0).random((10, 3)), np.zeros((10, 3))), "zero length"),
