@@ -15,7 +15,7 @@ from export.runtime import Runtime
 from model.decode import decode
 from model.networks import ARCHS, TorchSteps
 from model.nn.tensors import OctreeTensors
-from model.octree import build_octree
+from model.octree import LEAF, build_octree
 from model.octree.batch import split_octree
 from model.octree.metrics import chamfer_distance, sample_patches
 from model.octree.patches import patches_to_mesh
@@ -85,9 +85,21 @@ def test_decoding_through_onnxruntime_grows_the_same_octree(exported, clouds, na
         if np.array_equal(la.key, lb.key):
             same += int(np.sum(la.label == lb.label))
     assert total > 1000 and same / total >= 0.999
-    ma, mb = patches_to_mesh(a, world=False), patches_to_mesh(b, world=False)
-    assert len(ma.faces) > 0 and ma.vertices.shape == mb.vertices.shape
-    assert np.abs(ma.vertices - mb.vertices).max() <= TOL
+    # a split logit within rounding of zero may decide differently (a random-weight decoder has many):
+    # leaves may differ by 0.5%,
+    # and the leaves both decoded carry the same patches
+    leaves_a, leaves_b = _leaves(a), _leaves(b)
+    common = sorted(set(leaves_a) & set(leaves_b))
+    assert len(common) > 100 and len(set(leaves_a) ^ set(leaves_b)) <= 0.005 * len(leaves_b)
+    pa, pb = np.array([leaves_a[k] for k in common]), np.array([leaves_b[k] for k in common])
+    assert np.abs(pa - pb).max() <= TOL
+    assert len(patches_to_mesh(a, world=False).faces) > 0
+
+
+def _leaves(octree) -> dict:
+    """(depth, key) -> plane of every leaf."""
+    return {(lv.depth, int(k)): p for lv in octree.levels
+            for k, p in zip(lv.key[lv.label == LEAF], lv.plane[lv.label == LEAF].astype(np.float64))}
 
 
 def test_graphs_use_standard_operators_only_with_dynamic_sizes_and_folded_batch_norm(exported):
