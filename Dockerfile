@@ -24,13 +24,14 @@ RUN python3 -m venv /opt/venv \
        --shell /usr/sbin/nologin aocnn
 
 WORKDIR /app
-COPY pyproject.toml README.md ./
+COPY pyproject.toml README.md constraints.txt ./
 COPY model ./model
 COPY export ./export
 COPY service ./service
-# the serving extra only: onnxruntime, FastAPI, uvicorn (no torch, no training or export tools);
-# editable, so that the service finds examples/ and models/bundles/ beside its package, as in a clone
-RUN pip install --no-cache-dir -e ".[serve]" \
+# the serving extra only: onnxruntime, FastAPI, uvicorn (no torch, no training or export tools), at
+# the versions of constraints.txt; editable, so that the service finds examples/ and models/bundles/
+# beside its package, as in a clone
+RUN pip install --no-cache-dir -c constraints.txt -e ".[serve]" \
     && python3 -c "import importlib.util as u, sys; sys.exit(u.find_spec('torch') is not None)"
 COPY examples ./examples
 COPY models/bundles ./models/bundles

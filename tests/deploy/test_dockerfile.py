@@ -54,7 +54,7 @@ def test_base_image_is_an_argument_defaulting_to_official_slim_python():
 def test_installs_the_serving_extra_only():
     runs = " ".join(of("RUN"))
     installs = re.findall(r"pip install ([^&;]+)", runs)
-    assert [i.strip() for i in installs] == ['--no-cache-dir -e ".[serve]"']
+    assert [i.strip() for i in installs] == ['--no-cache-dir -c constraints.txt -e ".[serve]"']
     assert "torch" not in re.sub(r"find_spec\('torch'\)", "", runs)   # the one mention checks torch is absent
     for extra in ("dev", "train", "export"):
         assert f"[{extra}]" not in runs and f",{extra}]" not in runs
@@ -97,10 +97,10 @@ def test_offline_build_arguments():
 
 def test_copies_what_the_service_needs_and_dockerignore_keeps_the_rest_out():
     copied = " ".join(of("COPY"))
-    for needed in ("model", "export", "service", "examples", "models/bundles", "pyproject.toml"):
+    for needed in ("model", "export", "service", "examples", "models/bundles", "pyproject.toml", "constraints.txt"):
         assert needed in copied, needed
     ignore = [line.strip() for line in (ROOT / ".dockerignore").read_text().splitlines()
               if line.strip() and not line.startswith("#")]
     assert ignore[0] == "*"                                             # everything out, then what is needed
-    for needed in ("model/", "export/", "service/", "examples/", "models/bundles/"):
+    for needed in ("model/", "export/", "service/", "examples/", "models/bundles/", "constraints.txt"):
         assert f"!{needed}" in ignore, needed
