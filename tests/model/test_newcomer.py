@@ -46,7 +46,7 @@ def test_results_table_with_empty_outputs_has_no_nan_and_no_warning(tmp_path, ca
         assert table_main([str(a), str(b), "--bootstrap", "200"]) == 0
     out = capsys.readouterr().out
     assert "nan" not in out.lower() and "inf" not in out.lower()
-    assert "| b | +0.500 | [+0.500, +0.500] | 2 / 0 | 2 |" in out      # only the shapes both decoded
+    assert "| b | +0.500 | [+0.500, +0.500] | 2 / 0 / 0 | 2 |" in out      # only the shapes both decoded
     assert "| a | 2.00 | **2.000** | 1 |" in out                        # the empty output is counted
 
 

@@ -52,9 +52,11 @@ def chromium_executable() -> str | None:
     return next((c for c in candidates if c and os.access(c, os.X_OK)), None)
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def browser():
-    """Headless Chromium driven by playwright (the dev extra); skipped where no Chromium is installed."""
+    """Headless Chromium driven by playwright (the dev extra); skipped where no Chromium is installed.
+    Module-scoped: playwright's synchronous API keeps an event loop running in this thread until it
+    stops, and the tests after a browser module call asyncio.run."""
     exe = chromium_executable()
     if exe is None:
         pytest.skip("no Chromium browser: install it (apt-get install chromium) or set PLAYWRIGHT_CHROMIUM")
