@@ -47,7 +47,8 @@ def create_app(settings: Settings | None = None, engine: Engine | None = None) -
         app.add_middleware(CORSMiddleware, allow_origins=settings.origins(), allow_methods=["GET", "POST"],
                            allow_headers=["Authorization", "Content-Type"],
                            expose_headers=["Content-Disposition", "X-Model-Name", "X-Model-Version",
-                                           "X-Octree-Nodes", "X-Octree-Leaves", "X-Mesh-Faces"])
+                                           "X-Octree-Nodes", "X-Octree-Leaves", "X-Surface", "X-Mesh-Faces",
+                                           "X-Mesh-Closed", "Server-Timing"])
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
 
     @app.middleware("http")

@@ -13,6 +13,7 @@ import numpy as np
 from export.bundle import Bundle, BundleError, load_bundle
 from export.runtime import Runtime
 from model.decode import DECODED_NORMALIZATION
+from model.surface import DEFAULT_SURFACE, SURFACES, surface_mesh
 from model.octree import PointCloud, build_octree, scan_octree
 from model.octree.geometry import up_rotations
 from model.octree.batch import merge_octrees, split_octree
@@ -21,7 +22,7 @@ from .batching import Batcher
 from .errors import APIError
 from .inputs import image_input, shape_input
 from .limiter import Limiter, plan_threads
-from .meshes import MeshFile, encode_mesh
+from .meshes import MeshFile, encode, encode_mesh
 from .metrics import Metrics, StageTimer
 from .settings import Settings
 
@@ -42,6 +43,7 @@ class Request:
     color: bool
     timer: StageTimer
     filename: str | None = None
+    surface: str = DEFAULT_SURFACE
 
 
 @dataclass
@@ -103,7 +105,8 @@ class Engine:
             octree = rt.decode(latent)
             if any(octree.leaves_per_depth()):               # first exports import and compile lazily
                 for fmt in ("glb", "gltf", "ply", "obj"):
-                    encode_mesh(octree, fmt)
+                    for surface in SURFACES:
+                        encode_mesh(octree, fmt, surface=surface)
         self.ready = True
 
     def model(self, task: str) -> Served:
@@ -179,7 +182,7 @@ class Engine:
                 i, x = ready[k]
                 tree.normalizations = [frame(x)]
                 try:
-                    out[i] = _mesh(tree, items[i].fmt, items[i].color, items[i].timer)
+                    out[i] = _mesh(tree, items[i].fmt, items[i].color, items[i].timer, items[i].surface)
                 except APIError as exc:
                     out[i] = exc
         return out
@@ -205,21 +208,23 @@ class Engine:
             return served.runtime.classify(served.runtime.encode_octree(merge_octrees(trees)))
 
     def octree(self, data: bytes, filename: str | None, depth: int, threshold: float | None, full: bool, fmt: str,
-               color: bool, timer: StageTimer) -> MeshFile:
+               color: bool, timer: StageTimer, surface: str = DEFAULT_SURFACE) -> MeshFile:
         with timer("decode_input"):
             loaded = shape_input(data, filename, depth, self.settings.max_points, self.settings.max_npz_bytes, "shape")
         with timer("octree_build"):
             tree = build_octree(loaded.cloud, depth, adaptive=not full, neighbors=False,
                                 sample_spacing=loaded.sample_spacing, **({"threshold": threshold} if threshold else {}))
-        return _mesh(tree, fmt, color, timer)
+        return _mesh(tree, fmt, color, timer, surface)
 
 
-def _mesh(octree, fmt: str, color: bool, timer: StageTimer) -> MeshFile:
+def _mesh(octree, fmt: str, color: bool, timer: StageTimer, surface: str) -> MeshFile:
+    if not any(octree.leaves_per_depth()):
+        raise APIError(422, "empty_output", "the model decoded no surface from this input",
+                       "send a photo or scan of one object, centred, on a plain background")
+    with timer("surface"):
+        m = surface_mesh(octree, surface)
     with timer("mesh_encode"):
-        if not any(octree.leaves_per_depth()):
-            raise APIError(422, "empty_output", "the model decoded no surface from this input",
-                           "send a photo or scan of one object, centred, on a plain background")
-        return encode_mesh(octree, fmt, color)
+        return encode(m, octree, fmt, color)
 
 
 def _share(items: list[Request], stage: str, seconds: float) -> None:

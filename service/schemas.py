@@ -7,6 +7,7 @@ from typing import Literal
 from pydantic import BaseModel, Field
 
 Format = Literal["glb", "gltf", "ply", "obj"]
+Surface = Literal["watertight", "patches"]
 
 
 class GraphInfo(BaseModel):

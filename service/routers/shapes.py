@@ -8,29 +8,35 @@ from fastapi import APIRouter, Depends, File, Header, Query, UploadFile
 from fastapi.responses import Response
 
 from model.octree.build import MAX_BUILD_DEPTH
+from model.surface import DEFAULT_SURFACE
 
 from ..deps import engine, require_key
 from ..engine import Engine, Request
 from ..errors import ERROR_RESPONSES, APIError
 from ..meshes import FORMATS, MeshFile, choose_format
 from ..metrics import StageTimer
-from ..schemas import ClassifyResponse, ClassScore, Format
+from ..schemas import ClassifyResponse, ClassScore, Format, Surface
 
 router = APIRouter(prefix="/v1", tags=["shapes"], dependencies=[Depends(require_key)])
 
-MESH_RESPONSE = {200: {"description": "the patch mesh", "content": {m: {} for m in FORMATS.values()}},
+MESH_RESPONSE = {200: {"description": "the mesh (headers: X-Surface, X-Mesh-Faces, X-Mesh-Closed)",
+                       "content": {m: {} for m in FORMATS.values()}},
                  **ERROR_RESPONSES}
 FORMAT_Q = Query(None, description="glb (default), gltf, ply or obj; an Accept header may choose too")
 DEPTH_Q = Query(None, ge=1, le=MAX_BUILD_DEPTH, description="decode only down to this depth (a coarser, faster level "
                 "of detail; the model's range is in GET /v1/models: min_depth..depth)")
-COLOR_Q = Query(False, description="colour each patch by its octree depth")
+COLOR_Q = Query(False, description="colour the mesh by the octree depth of the leaf each vertex comes from")
+SURFACE_Q = Query(DEFAULT_SURFACE, description="watertight: a closed, consistently oriented 2-manifold mesh (it "
+                  "can be 3D-printed, voxelised or used as a collider); patches: the paper's output, one planar "
+                  "patch per octree leaf, with cracks between them")
 
 
 def mesh_response(mesh: MeshFile, name: str, timer: StageTimer, model: str = "", version: str = "") -> Response:
     headers = {"Content-Disposition": f'attachment; filename="{name}.{mesh.extension}"',
                "X-Octree-Nodes": str(mesh.nodes),
                "X-Octree-Leaves": ",".join(f"{d}:{n}" for d, n in mesh.leaves.items()),
-               "X-Mesh-Faces": str(mesh.faces), "Server-Timing": timer.header()}
+               "X-Surface": mesh.surface, "X-Mesh-Faces": str(mesh.faces),
+               "X-Mesh-Closed": "true" if mesh.closed else "false", "Server-Timing": timer.header()}
     if model:
         headers |= {"X-Model-Name": model, "X-Model-Version": version}
     return Response(mesh.data, media_type=mesh.media_type, headers=headers)
@@ -46,15 +52,16 @@ async def _submit(eng: Engine, task: str, request: Request) -> MeshFile:
 
 
 @router.post("/image-to-shape", response_class=Response, responses=MESH_RESPONSE,
-             summary="A photo of one object -> its 3D shape as a patch mesh")
+             summary="A photo of one object -> its 3D shape as a mesh (closed, or the leaf patches)")
 async def image_to_shape(image: UploadFile = File(..., description="PNG, JPEG, WebP, GIF, BMP or TIFF of one object"),
-                         format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q,
+                         format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q, surface: Surface = SURFACE_Q,
                          color_by_depth: bool = COLOR_Q, accept: str | None = Header(None),
                          eng: Engine = Depends(engine)) -> Response:
     b = eng.model("image-to-shape").bundle
     data, _ = await _read(image)
     timer = StageTimer(eng.metrics)
-    mesh = await _submit(eng, "image-to-shape", Request(data, choose_format(format, accept), depth, color_by_depth, timer))
+    mesh = await _submit(eng, "image-to-shape", Request(data, choose_format(format, accept), depth, color_by_depth, timer,
+                                                        surface=surface))
     return mesh_response(mesh, "shape", timer, b.name, b.version)
 
 
@@ -62,25 +69,26 @@ async def image_to_shape(image: UploadFile = File(..., description="PNG, JPEG, W
              summary="A partial, noisy point cloud -> the completed shape, in the input's coordinates")
 async def complete(points: UploadFile = File(..., description="PLY (ascii/binary), XYZ/TXT, NPY, NPZ or OBJ "
                                               "vertices, with or without normals"),
-                   format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q, color_by_depth: bool = COLOR_Q,
-                   accept: str | None = Header(None), eng: Engine = Depends(engine)) -> Response:
+                   format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q, surface: Surface = SURFACE_Q,
+                   color_by_depth: bool = COLOR_Q, accept: str | None = Header(None),
+                   eng: Engine = Depends(engine)) -> Response:
     b = eng.model("completion").bundle
     data, filename = await _read(points)
     timer = StageTimer(eng.metrics)
     mesh = await _submit(eng, "completion",
-                         Request(data, choose_format(format, accept), depth, color_by_depth, timer, filename))
+                         Request(data, choose_format(format, accept), depth, color_by_depth, timer, filename, surface))
     return mesh_response(mesh, "completed", timer, b.name, b.version)
 
 
 @router.post("/octree", response_class=Response, responses=MESH_RESPONSE,
-             summary="A mesh or point cloud -> its patch-guided adaptive octree as a patch mesh (no learning)")
+             summary="A mesh or point cloud -> the surface of its patch-guided adaptive octree (no learning)")
 async def octree(shape: UploadFile = File(..., description="a mesh (OBJ, OFF, STL, PLY, GLB, glTF) or a point cloud"),
                  depth: int = Query(6, ge=2, le=MAX_BUILD_DEPTH, description="octree depth (at most "
                                     "AOCNN_MAX_OCTREE_DEPTH, 8 by default)"),
                  threshold: float | None = Query(None, gt=0, le=64, description="split threshold in finest voxels "
                                                  "(default the paper's sqrt(3)/2)"),
                  full: bool = Query(False, description="the full O-CNN octree instead of the adaptive one"),
-                 format: Format | None = FORMAT_Q, color_by_depth: bool = COLOR_Q,
+                 format: Format | None = FORMAT_Q, surface: Surface = SURFACE_Q, color_by_depth: bool = COLOR_Q,
                  accept: str | None = Header(None), eng: Engine = Depends(engine)) -> Response:
     if depth > eng.settings.max_octree_depth:
         raise APIError(422, "invalid_depth", f"depth must be at most {eng.settings.max_octree_depth}, got {depth}",
@@ -89,7 +97,8 @@ async def octree(shape: UploadFile = File(..., description="a mesh (OBJ, OFF, ST
     fmt = choose_format(format, accept)
     timer = StageTimer(eng.metrics)
     mesh = await eng.limiter.run(
-        lambda: eng.octree(data, filename, depth, threshold, full, fmt, color_by_depth, timer), eng.settings.timeout_s)
+        lambda: eng.octree(data, filename, depth, threshold, full, fmt, color_by_depth, timer, surface),
+        eng.settings.timeout_s)
     return mesh_response(mesh, "octree", timer)
 
 

@@ -13,6 +13,7 @@ from export.bundle import load_bundle
 from export.runtime import Runtime
 from model.files import sha256_file
 from model.octree.patches import patches_to_mesh
+from model.surface import surface_mesh
 
 from .conftest import make_client
 
@@ -55,10 +56,11 @@ def test_models_lists_each_bundle_with_the_checksums_of_its_files(client, models
         assert g["sha256"] == sha256_file(models_dir / "image-to-shape" / g["file"])
 
 
+@pytest.mark.parametrize("surface", ["watertight", "patches"])
 @pytest.mark.parametrize("fmt, media", [("glb", "model/gltf-binary"), ("gltf", "model/gltf+json"),
                                         ("ply", "application/x-ply"), ("obj", "model/obj")])
-def test_image_to_shape_returns_the_bundle_s_decoded_patches_in_every_format(client, models_dir, fmt, media):
-    r = client.post(f"/v1/image-to-shape?format={fmt}", files={"image": ("p.png", photo(), "image/png")})
+def test_image_to_shape_returns_the_bundle_s_decoded_surface_in_every_format(client, models_dir, fmt, media, surface):
+    r = client.post(f"/v1/image-to-shape?format={fmt}&surface={surface}", files={"image": ("p.png", photo(), "image/png")})
     assert r.status_code == 200, r.text
     assert r.headers["content-type"] == media
     assert r.headers["content-disposition"] == f'attachment; filename="shape.{fmt}"'
@@ -69,7 +71,10 @@ def test_image_to_shape_returns_the_bundle_s_decoded_patches_in_every_format(cli
     from model.preprocess import load_and_prepare
     runtime = Runtime(bundle, threads=1)
     octree = runtime.decode(runtime.encode_image(load_and_prepare(photo(), bundle.image_spec())[None]))
-    want = patches_to_mesh(octree)
+    m = surface_mesh(octree, surface)
+    want = trimesh.Trimesh(m.vertices, m.faces, process=False)
+    assert r.headers["x-surface"] == surface and r.headers["x-mesh-closed"] == str(m.closed).lower()
+    assert m.closed == (surface == "watertight")
     assert int(r.headers["x-mesh-faces"]) == len(want.faces) > 0
     assert int(r.headers["x-octree-nodes"]) == sum(octree.nodes_per_depth())
     assert r.headers["x-octree-leaves"] == ",".join(f"{d}:{n}" for d, n in enumerate(octree.leaves_per_depth()) if n)
@@ -148,12 +153,16 @@ def test_octree_endpoint_builds_the_adaptive_octree_of_a_mesh(client):
 
 @pytest.mark.parametrize("fmt", ["stl", "off", "ply", "glb", "obj"])
 def test_octree_endpoint_recognises_meshes_by_their_bytes_whatever_the_file_name(client, fmt):
+    """The box's surface at depth 4 (a cell is 0.13 wide): the patches overhang their faces by up to
+    0.4 cell, the closed surface by up to 0.7 cell where leaves span the box's edges."""
     data = trimesh.creation.box(extents=(2.0, 1.0, 0.5)).export(file_type=fmt)
     data = data.encode() if isinstance(data, str) else data
-    r = client.post("/v1/octree?depth=4&format=ply", files={"shape": ("upload.bin", data)})
-    assert r.status_code == 200, (fmt, r.text)
-    mesh = trimesh.load(io.BytesIO(r.content), file_type="ply", process=False)
-    assert np.allclose(mesh.bounds, [[-1, -0.5, -0.25], [1, 0.5, 0.25]], atol=0.05)
+    for surface, atol in (("patches", 0.05), ("watertight", 0.09)):
+        r = client.post(f"/v1/octree?depth=4&format=ply&surface={surface}", files={"shape": ("upload.bin", data)})
+        assert r.status_code == 200, (fmt, r.text)
+        mesh = trimesh.load(io.BytesIO(r.content), file_type="ply", process=False)
+        assert np.allclose(mesh.bounds, [[-1, -0.5, -0.25], [1, 0.5, 0.25]], atol=atol), (surface, mesh.bounds)
+        assert mesh.is_watertight == (surface == "watertight") and r.headers["x-surface"] == surface
 
 
 def test_openapi_documents_every_endpoint_with_its_models(client):
@@ -268,9 +277,10 @@ def test_complete_builds_the_training_input_octree_with_and_without_normals(clie
             latent = model.encoder(OctreeTensors.from_octree(tree)).numpy()
         out = split_octree(decode(TorchSteps(model.decoder), latent), neighbors=False)[0]
         out.normalizations = [scan_frame(pts)]
-        want = patches_to_mesh(out)
+        m = surface_mesh(out)
+        want = trimesh.Trimesh(m.vertices, m.faces, process=False)
         assert len(want.faces) > 0 and np.allclose(got.bounds, want.bounds, atol=1e-3 * np.ptp(pts, 0).max())
-        assert got.area == pytest.approx(want.area, rel=1e-3)
+        assert got.area == pytest.approx(want.area, rel=1e-3) and r.headers["x-mesh-closed"] == "true"
 
 
 @pytest.mark.parametrize("accept, fmt", [

@@ -1,0 +1,122 @@
+"""A decoded octree's leaves on the grid of its finest cells: which leaf owns each cell, and the
+leaf planes' values at the corners of the cells near them.
+
+The grid covers the leaves' bounding box with :data:`PAD` cells of padding on every side, so
+that its outermost corners, and the cells they belong to, are outside the shape.  Padded cell ``i`` along an axis is the finest cell
+``origin + i - PAD`` (cell ``c`` spans ``[c h, (c + 1) h]``, ``h = 2^-D``); corner ``i`` is at
+``(origin + i - PAD) h``.  Arrays are dense over the box; the work per leaf is in proportion to
+the cells of its cube.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..octree import LEAF, Octree
+from ..octree.octree import PLANE_SCALE
+
+PAD = 2
+CORNER_OFFSETS = np.array([[c & 1, c >> 1 & 1, c >> 2 & 1] for c in range(8)])
+
+
+@dataclass
+class Leaves:
+    """The leaves of one shape: integer cube origin in finest cells, edge in cells, unit normal
+    and the plane's constant: the plane is ``normal . x + const = 0`` in cube coordinates."""
+
+    origin: np.ndarray     # (L, 3) int64
+    cells: np.ndarray      # (L,) int64 edge length in finest cells
+    normal: np.ndarray     # (L, 3) float64
+    const: np.ndarray      # (L,) float64
+
+    def __len__(self) -> int:
+        return len(self.cells)
+
+    def values(self, index: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Signed distances of ``points`` (M, 3) to the planes of leaves ``index`` (M,)."""
+        return np.einsum("ij,ij->i", points, self.normal[index]) + self.const[index]
+
+
+def leaves_of(octree: Octree) -> Leaves:
+    """Every leaf of a single-shape octree (planes read as :func:`model.octree.patches.leaf_patches` does)."""
+    parts = []
+    for lv in octree.levels:
+        sel = np.flatnonzero(lv.label == LEAF)
+        if not len(sel):
+            continue
+        f = 1 << (octree.depth - lv.depth)
+        n = lv.plane[sel, :3].astype(np.float64)
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        d = lv.plane[sel, 3].astype(np.float64) * PLANE_SCALE * lv.size
+        const = d - np.einsum("ij,ij->i", n, lv.centers()[sel])
+        parts.append((lv.coords()[sel].astype(np.int64) * f, np.full(len(sel), f, np.int64), n, const))
+    if not parts:
+        return Leaves(np.zeros((0, 3), np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
+    return Leaves(*[np.concatenate(c) for c in zip(*parts)])
+
+
+@dataclass
+class Grid:
+    """The finest grid over one shape's leaves: ``n`` cells per unit length, the box ``origin`` (in
+    finest cells), the owning leaf of every cell (-1: none), and at corners near a plane the
+    planes' mean value (negative inside) and the nearest plane's leaf.
+
+    Invariant: ``near`` holds every corner of a cell whose owner's plane passes within ``band``
+    cell diagonals of the cell's centre (a *band* cell); ``value`` there is the mean of the planes'
+    values over the band cells around the corner (each cell counts once, so a large leaf owning
+    several of them counts more), and ``leaf`` is the leaf whose plane is nearest the corner
+    among them."""
+
+    n: int
+    origin: np.ndarray       # (3,) int64
+    owner: np.ndarray        # cells: int32 leaf or -1
+    near: np.ndarray         # corners: bool
+    value: np.ndarray        # corners: float32 (inf where not near)
+    leaf: np.ndarray         # corners: int32 (-1 where not near)
+
+    @property
+    def h(self) -> float:
+        return 1.0 / self.n
+
+    def corner_positions(self, index: np.ndarray) -> np.ndarray:
+        """Cube coordinates of corners given as (M, 3) padded grid indices."""
+        return (index + self.origin - PAD) * self.h
+
+
+def build_grid(leaves: Leaves, depth: int, band: float = 1.0) -> Grid:
+    """Rasterise ``leaves`` onto the finest grid of ``depth`` over their bounding box; a cell is
+    near its owner's plane when the plane passes within ``band`` cell diagonals of its centre."""
+    n = 1 << depth
+    h = 1.0 / n
+    origin = leaves.origin.min(0)
+    size = (leaves.origin + leaves.cells[:, None]).max(0) - origin
+    owner = np.full(tuple(size + 2 * PAD), -1, np.int32)
+    shape = tuple(size + 2 * PAD + 1)
+    total = np.zeros(shape, np.float32)
+    votes = np.zeros(shape, np.uint8)
+    nearest = np.full(shape, np.inf, np.float32)
+    leaf_at = np.full(shape, -1, np.int32)
+    reach = band * np.sqrt(3.0) * h
+    shift = PAD - origin
+    for f in np.unique(leaves.cells):
+        sel = np.flatnonzero(leaves.cells == f)
+        sub = np.stack(np.meshgrid(*[np.arange(f)] * 3, indexing="ij"), -1).reshape(-1, 3)      # (f^3, 3)
+        cells = (leaves.origin[sel, None, :] + sub[None]).reshape(-1, 3)                         # finest cells
+        ids = np.repeat(sel, len(sub))
+        index = cells + shift
+        owner[index[:, 0], index[:, 1], index[:, 2]] = ids
+        close = np.abs(leaves.values(ids, (cells + 0.5) * h)) <= reach
+        cells, ids, index = cells[close], ids[close], index[close]
+        for off in CORNER_OFFSETS:                      # each pass maps the cells to distinct corners
+            v = leaves.values(ids, (cells + off) * h).astype(np.float32)
+            x, y, z = (index + off).T
+            total[x, y, z] += v
+            votes[x, y, z] += 1
+            better = np.abs(v) < nearest[x, y, z]
+            nearest[x[better], y[better], z[better]] = np.abs(v[better])
+            leaf_at[x[better], y[better], z[better]] = ids[better]
+    near = votes > 0
+    value = np.where(near, total / np.maximum(votes, 1), np.inf).astype(np.float32)
+    return Grid(n, origin, owner, near, value, leaf_at)
