@@ -86,23 +86,24 @@ def contour(grid: Grid, leaves: Leaves, inside: np.ndarray) -> tuple[np.ndarray,
         ring[flip] = ring[flip][:, ::-1]
         rings.append(ring)
         cells.append(np.stack(around, 1))
-        edges.append((p, np.full(len(p), axis)))
+        edges.append((p, np.full(len(p), axis), out_first))
     if not rings:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64)
     rings = np.concatenate(rings)
     cell = _vertex_cells(config.shape, first)
-    verts = _place(grid, leaves, cell, np.concatenate(cells), np.concatenate([e[0] for e in edges]),
-                   np.concatenate([e[1] for e in edges]), rings)
+    verts = _place(grid, leaves, cell, np.concatenate(cells), *(np.concatenate(e) for e in zip(*edges)), rings)
     return verts, _triangles(verts, rings), grid.owner[cell[:, 0], cell[:, 1], cell[:, 2]].astype(np.int64)
 
 
 def _place(grid: Grid, leaves: Leaves, vertex_cell: np.ndarray, cells: np.ndarray, p: np.ndarray,
-           axis: np.ndarray, rings: np.ndarray) -> np.ndarray:
+           axis: np.ndarray, out_first: np.ndarray, rings: np.ndarray) -> np.ndarray:
     """Each vertex at the least-squares point of the leaf planes around its crossing edges (the
     planes of the leaves owning the 4 cells around each edge: one plane inside a leaf, two or
     three where leaves meet at an edge or corner), regularised towards the mean crossing point,
     and kept inside its cell.  An edge with no leaf around it (a surface the sign field closed)
-    constrains its vertices to the plane through its midpoint, across the edge."""
+    constrains its vertices to the plane across the edge through its inside corner; and where a
+    leaf's plane does not cross the edge it meets (the end of a thin part, a closed gap), its
+    point is the inside corner too: such surfaces close at the last inside corner, not further."""
     h = grid.h
     nverts = len(vertex_cell)
     a_pos = grid.corner_positions(p)
@@ -110,18 +111,19 @@ def _place(grid: Grid, leaves: Leaves, vertex_cell: np.ndarray, cells: np.ndarra
     owners = grid.owner.ravel()[cells]                          # (E, 4) leaf or -1
     free = (owners < 0).all(1)                                   # no leaf around the edge
     normals, consts, points, targets = [], [], [], []
-    mid = a_pos + 0.5 * h * direction
+    inner = a_pos + out_first[:, None] * h * direction        # the edge's inside corner
     for k in range(4):
         o = owners[:, k]
         has = o >= 0
         use = has | (free & (k == 0))                           # a free edge constrains once
-        o, n_dir, mid_k = o[use], direction[use], mid[use]
+        o, n_dir, inner_k = o[use], direction[use], inner[use]
         has = has[use]
         n = np.where(has[:, None], leaves.normal[np.maximum(o, 0)], n_dir)
-        c = np.where(has, leaves.const[np.maximum(o, 0)], -np.einsum("ij,ij->i", n_dir, mid_k))
+        c = np.where(has, leaves.const[np.maximum(o, 0)], -np.einsum("ij,ij->i", n_dir, inner_k))
         fa = np.einsum("ij,ij->i", n, a_pos[use]) + c            # the plane n.x + c = 0 along the edge
-        slope = np.einsum("ij,ij->i", n, n_dir) * h
-        t = np.clip(np.divide(-fa, slope, out=np.full_like(fa, 0.5), where=np.abs(slope) > 1e-12), 0, 1)
+        fb = fa + np.einsum("ij,ij->i", n, n_dir) * h
+        crosses = (fa <= 0) != (fb <= 0)
+        t = np.where(crosses, fa / np.where(crosses, fa - fb, 1.0), out_first[use].astype(np.float64))
         point = a_pos[use] + t[:, None] * h * n_dir
         for j in range(4):                                      # every vertex around the edge
             normals.append(n)
