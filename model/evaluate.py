@@ -15,8 +15,11 @@ than two finest voxels from the scan) to the output, and to the scan itself.  Oc
 the point-set decoder its points; the AtlasNet decoder a 20 x 20 grid per patch.  --icp also
 reports the Chamfer distance after rigid ICP alignment of the prediction to the truth (as the
 paper's Table 4).  A shape whose decoder outputs nothing (no patch) has no Chamfer value: it is
-counted in ``empty_outputs`` and left out of the means.  The results also hold per-shape values
-and, for octree decoders, the teacher-forced status accuracy per depth.  Diagnostics: --oracle
+counted in ``empty_outputs`` and left out of the means.  Octree decoders with planes are also
+measured through their closed surface (:func:`model.surface.watertight_mesh`, sampled uniformly by
+area with as many points): the Chamfer distance and the F-score at 1% of the truth's diagonal of
+both surfaces, and how many closed surfaces failed to close.  The results also hold per-shape
+values and, for octree decoders, the teacher-forced status accuracy per depth.  Diagnostics: --oracle
 structure decodes with the true statuses (separating structure errors from patch errors);
 --oracle all also takes the true planes (the representation's own floor).
 """
@@ -30,6 +33,8 @@ import time
 
 import numpy as np
 import torch
+import trimesh
+from scipy.spatial import cKDTree
 
 from .align import icp
 from .checkpoint import load_model
@@ -39,8 +44,8 @@ from .networks import AtlasNetDecoder, OctreeDecoder, PointSetDecoder, TorchStep
 from .nn.tensors import OctreeTensors
 from .octree import LEAF, Octree
 from .octree.metrics import chamfer_distance, mean_squared_distance, missing_part, sample_patches
-from .octree.patches import patches_to_mesh
 from .octree.batch import split_octree
+from .surface import DEFAULT_SURFACE, SURFACES, surface_mesh
 from .train.config import TrainConfig
 from .train.images import image_batch
 from .train.completion import truth_view
@@ -121,6 +126,36 @@ MISSING_GAP_VOXELS = 2
 """Truth points farther than this many finest voxels from the partial scan form its missing part."""
 
 
+FSCORE_SHARE = 0.01
+"""F-score threshold: 1% of the truth's bounding-box diagonal (Tatarchenko et al., CVPR 2019)."""
+
+
+def fscore(truth: np.ndarray, pts: np.ndarray, threshold: float) -> float:
+    """The harmonic mean of precision (share of ``pts`` within ``threshold`` of the truth) and
+    recall (share of the truth within ``threshold`` of ``pts``)."""
+    precision = float((cKDTree(truth).query(pts, workers=-1)[0] <= threshold).mean())
+    recall = float((cKDTree(pts).query(truth, workers=-1)[0] <= threshold).mean())
+    return 2 * precision * recall / (precision + recall) if precision + recall else 0.0
+
+
+def surface_rows(sample, tree: Octree, pts: np.ndarray, seed: int) -> dict:
+    """Chamfer (x1e3) and F-score of both surfaces of a decoded octree against the truth: the
+    patches (``pts``, sampled by the paper's protocol) and the closed surface (sampled uniformly by
+    area, as many points), and whether the closed one is closed."""
+    truth = sample.points
+    threshold = FSCORE_SHARE * float(np.linalg.norm(truth.max(0) - truth.min(0)))
+    closed = surface_mesh(tree, "watertight", world=False)
+    row = {"fscore": fscore(truth, pts, threshold), "watertight_closed": closed.closed}
+    if len(closed.faces):
+        mesh = trimesh.Trimesh(closed.vertices, closed.faces, process=False)
+        wpts = truth_view(sample, trimesh.sample.sample_surface(mesh, max(len(pts), 1000), seed=seed)[0])
+        row.update(watertight_chamfer_x1e3=chamfer_distance(truth, wpts) * 1e3,
+                   watertight_fscore=fscore(truth, wpts, threshold))
+    else:
+        row.update(watertight_chamfer_x1e3=None, watertight_fscore=None)
+    return row
+
+
 def _missing(sample, pts: np.ndarray, depth: int) -> dict:
     """Completion rows: the missing part's distance to the output and to the input itself."""
     part = missing_part(sample.points, sample.partial, MISSING_GAP_VOXELS / (1 << depth))
@@ -136,10 +171,12 @@ def _mean_or_none(values: list[float]) -> float | None:
 
 def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, limit: int | None = None,
              mesh_dir: str | None = None, batch_size: int = 8, seed: int = 0, oracle: str = "none",
-             align: bool = False, bundle: str | None = None, normals: str = "given") -> dict:
+             align: bool = False, bundle: str | None = None, normals: str = "given",
+             surface: str = DEFAULT_SURFACE) -> dict:
     """The results dictionary written by the CLI (see the module docstring).  ``bundle``: encode
     and decode with this exported bundle in onnxruntime instead of the torch model.  ``normals``:
-    completion inputs built with the scanner's normals or with estimated ones."""
+    completion inputs built with the scanner's normals or with estimated ones.  ``surface``: the
+    surface written to ``mesh_dir`` (both are measured)."""
     if oracle not in ORACLES:
         raise ValueError(f"--oracle must be one of {', '.join(ORACLES)}")
     loaded = load_model(run)
@@ -171,6 +208,9 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     extra = {"normals": normals} if completion else {}
     records = task.dataset(cfg, split, seed, points=20_000, limit=limit, **extra)
     metrics = ("chamfer_x1e3", "chamfer_icp_x1e3") if align else ("chamfer_x1e3",)
+    surfaces = octree_decoder and model.decoder.has_plane(cfg.depth)
+    if surfaces:
+        metrics += ("fscore", "watertight_chamfer_x1e3", "watertight_fscore")
     if completion:
         metrics += ("input_chamfer_x1e3", "missing_x1e3", "input_missing_x1e3")
     per_cat: dict[str, dict[str, list[float]]] = {m: {} for m in metrics}
@@ -204,6 +244,8 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
                 if align:
                     moved = icp(pts, sample.points).apply(pts) if len(pts) >= 3 else pts
                     row["chamfer_icp_x1e3"] = min(row["chamfer_x1e3"], chamfer_distance(sample.points, moved) * 1e3)
+                if surfaces:
+                    row.update(surface_rows(sample, tree, pts, seed))
             else:
                 empty += 1
                 row.update({m: None for m in metrics})
@@ -220,13 +262,16 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
                 sizes["decoded_leaves"].append(sum(tree.leaves_per_depth()))
                 if mesh_dir and model.decoder.has_plane(tree.depth) and len(pts):
                     tree.normalizations = [sample.octree.normalizations[0]]
+                    m = surface_mesh(tree, surface)
                     write_atomic(os.path.join(mesh_dir, f"{sample.shape_id}.ply"),
-                                 patches_to_mesh(tree).export(file_type="ply"))
+                                 trimesh.Trimesh(m.vertices, m.faces, process=False).export(file_type="ply"))
             per_shape.append(row)
     results = {
         "run": str(run), "task": cfg.task, "arch": cfg.arch, "depth": cfg.depth, "split": split,
         "resolution": resolution, "bundle": bundle, "shapes": len(per_shape), "empty_outputs": empty, "oracle": oracle,
     }
+    if surfaces:
+        results["watertight_not_closed"] = sum(1 for r in per_shape if r.get("watertight_closed") is False)
     for m in metrics:
         means = {c: float(np.mean(v)) for c, v in sorted(per_cat[m].items())}
         results[m] = means
@@ -306,7 +351,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", required=True, help="dataset folder built by python -m model.data build")
     ap.add_argument("--split", default="test", choices=("train", "val", "test"), help="split to evaluate (default test)")
     ap.add_argument("--out", required=True, help="results JSON")
-    ap.add_argument("--mesh-dir", default=None, help="write decoded patch meshes (PLY) here")
+    ap.add_argument("--mesh-dir", default=None, help="write decoded meshes (PLY) here")
+    ap.add_argument("--surface", choices=SURFACES, default=DEFAULT_SURFACE,
+                    help=f"the surface written to --mesh-dir; both are measured (default {DEFAULT_SURFACE})")
     ap.add_argument("--resolution", type=int, default=128,
                     help="patch sampling grid: one point per sub-patch of resolution^3 (default 128, the paper's)")
     ap.add_argument("--limit", type=int, default=None, help="evaluate at most this many shapes (default all)")
@@ -327,7 +374,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.resolution < 2 or args.limit is not None and args.limit < 1:
             raise ValueError("--resolution must be at least 2 and --limit at least 1")
         results = evaluate(args.run, args.data, args.split, args.resolution, args.limit, args.mesh_dir,
-                           oracle=args.oracle, align=args.icp, bundle=args.bundle, normals=args.normals)
+                           oracle=args.oracle, align=args.icp, bundle=args.bundle, normals=args.normals,
+                           surface=args.surface)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -343,6 +391,10 @@ def main(argv: list[str] | None = None) -> int:
         text += f" ({results['chamfer_icp_x1e3_category_mean']:.3f} after ICP)"
     if results.get("input_chamfer_x1e3_category_mean") is not None:
         text += f"; the partial inputs themselves {results['input_chamfer_x1e3_category_mean']:.3f}"
+    if results.get("watertight_chamfer_x1e3_category_mean") is not None:
+        text += (f"; closed surface {results['watertight_chamfer_x1e3_category_mean']:.3f} (F-score "
+                 f"{results['watertight_fscore_category_mean']:.3f} against the patches' {results['fscore_category_mean']:.3f}"
+                 f", {results['watertight_not_closed']} not closed)")
     print(text)
     if results["empty_outputs"]:
         print(f"warning: {results['empty_outputs']} of {results['shapes']} shapes decoded to nothing (no patch: "

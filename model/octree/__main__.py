@@ -1,7 +1,9 @@
-"""Command line: build the octree of a mesh or point cloud and write its patch mesh (and stats).
+"""Command line: build the octree of a mesh or point cloud and write its surface, closed or as
+the leaf patches (and stats).
 
     python -m model.octree INPUT --depth D [--full] [--threshold VOXELS] [--points N]
-                           --out OUT.{ply,glb,obj} [--stats STATS.json] [--color-by-depth]
+                           [--surface watertight|patches] --out OUT.{ply,glb,obj,stl,off}
+                           [--stats STATS.json] [--color-by-depth]
 """
 
 from __future__ import annotations
@@ -13,12 +15,15 @@ import time
 
 import numpy as np
 
+import trimesh
+
 from ..files import json_text, write_atomic
+from ..surface import DEFAULT_SURFACE, SURFACES, surface_mesh
 from .build import DEFAULT_THRESHOLD, MAX_BUILD_DEPTH, build_octree
 from .errors import OctreeInputError
 from .inputs import load_input
 from .octree import LEAF, Octree
-from .patches import patches_to_mesh
+from .patches import depth_colors
 from ..cli import command_parser
 
 OUTPUT_EXTENSIONS = (".ply", ".glb", ".obj", ".stl", ".off")
@@ -35,9 +40,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                     help="split threshold delta hat in finest voxels (default sqrt(3)/2)")
     ap.add_argument("--points", type=int, default=None,
                     help="number of surface samples for a mesh (default: spacing of 1/3 finest voxel)")
-    ap.add_argument("--out", required=True, help="patch mesh to write (.ply, .glb, .obj, .stl, .off)")
+    ap.add_argument("--out", required=True, help="mesh to write (.ply, .glb, .obj, .stl, .off)")
+    ap.add_argument("--surface", choices=SURFACES, default=DEFAULT_SURFACE,
+                    help=f"watertight: a closed, consistently oriented 2-manifold mesh; patches: one planar patch "
+                         f"per leaf, the paper's output (default {DEFAULT_SURFACE})")
     ap.add_argument("--stats", default=None, help="write statistics as JSON here")
-    ap.add_argument("--color-by-depth", action="store_true", help="colour each patch by its depth")
+    ap.add_argument("--color-by-depth", action="store_true", help="colour the mesh by the depth of the leaves")
     ap.add_argument("--seed", type=int, default=0, help="seed of the mesh sampling")
     return ap.parse_args(argv)
 
@@ -83,13 +91,15 @@ def run(args: argparse.Namespace) -> dict:
     octree = build_octree(loaded.cloud, args.depth, adaptive=not args.full, threshold=args.threshold,
                           neighbors=False, measure_leaves=True, sample_spacing=loaded.sample_spacing)
     seconds = time.perf_counter() - t
-    mesh = patches_to_mesh(octree, color_by_depth=args.color_by_depth)
+    m = surface_mesh(octree, args.surface)
+    colors = depth_colors(m.vertex_depth) if args.color_by_depth else None
+    mesh = trimesh.Trimesh(m.vertices, m.faces, vertex_colors=colors, process=False)
     data = mesh.export(file_type=ext[1:])
     write_atomic(args.out, data.encode() if isinstance(data, str) else data)
     stats = octree_stats(octree, seconds)
     stats.update(input=args.input, points=len(loaded.cloud), input_kind=loaded.kind,
                  normals_estimated=loaded.normals_estimated, patches=int(sum(stats["leaves_per_depth"])),
-                 triangles=int(len(mesh.faces)))
+                 surface=m.kind, triangles=int(len(m.faces)), closed=m.closed)
     if args.stats:
         write_atomic(args.stats, json_text(stats, indent=2).encode())
     return stats
@@ -102,7 +112,8 @@ def main(argv: list[str] | None = None) -> int:
     except OctreeInputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(f"{args.out}: {stats['patches']} patches, {stats['nodes']} nodes, depth {stats['depth']}, "
+    print(f"{args.out}: {stats['surface']} surface, {stats['triangles']} triangles"
+          f"{' (closed)' if stats['closed'] else ''}, {stats['patches']} patches, {stats['nodes']} nodes, depth {stats['depth']}, "
           f"max patch error {stats['max_patch_error']:.4g} (threshold {stats['threshold']:.4g}), "
           f"{stats['seconds']:.2f} s")
     return 0

@@ -19,6 +19,7 @@ from scipy.sparse.csgraph import connected_components
 
 from ..octree import Octree
 from ..octree.patches import patch_mesh
+from .checks import is_closed, is_manifold
 from .dmc import contour
 from .grid import build_grid, leaves_of
 from .sign import inside_corners
@@ -73,7 +74,7 @@ def watertight_mesh(octree: Octree, world: bool = True, min_component_faces: int
     verts, depth = np.clip(verts[keep], 0.0, 1.0), depth[keep]      # the octree's cube is its domain
     if world:
         verts = octree.normalizations[0].to_world(verts)
-    return SurfaceMesh("watertight", verts, faces, depth, is_closed(faces))
+    return SurfaceMesh("watertight", verts, faces, depth, is_manifold(faces))
 
 
 def drop_small_components(nverts: int, faces: np.ndarray, min_faces: int) -> tuple[np.ndarray, np.ndarray]:
@@ -90,16 +91,3 @@ def drop_small_components(nverts: int, faces: np.ndarray, min_faces: int) -> tup
     used[faces.ravel()] = True
     remap = np.cumsum(used) - 1
     return used, remap[faces]
-
-
-def is_closed(faces: np.ndarray) -> bool:
-    """Every directed edge appears once and its reverse once: closed and consistently wound."""
-    if not len(faces):
-        return True
-    n = int(faces.max()) + 1
-    a = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2]]).astype(np.int64)
-    b = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]]).astype(np.int64)
-    directed = np.sort(a * n + b)
-    if np.any(directed[1:] == directed[:-1]):
-        return False                                   # an edge traversed twice the same way
-    return bool(np.array_equal(directed, np.sort(b * n + a)))

@@ -1,10 +1,11 @@
 """A decoded octree's leaves on the grid of its finest cells: which leaf owns each cell, and the
 leaf planes' values at the corners of the cells near them.
 
-The grid covers the leaves' bounding box with :data:`PAD` cells of padding on every side, so
-that its outermost corners, and the cells they belong to, are outside the shape.  Padded cell ``i`` along an axis is the finest cell
-``origin + i - PAD`` (cell ``c`` spans ``[c h, (c + 1) h]``, ``h = 2^-D``); corner ``i`` is at
-``(origin + i - PAD) h``.  Arrays are dense over the box; the work per leaf is in proportion to
+The grid covers the leaves' bounding box with at least :data:`PAD` cells of padding on every
+side, so that its outermost corners, and the cells they belong to, are outside the shape; its
+bounds are multiples of ``align`` cells, so that blocks of that many cells sit where octree
+cubes do.  Array cell ``i`` along an axis is the finest cell ``origin + i`` (cell ``c`` spans
+``[c h, (c + 1) h]``, ``h = 2^-D``); corner ``i`` is at ``(origin + i) h``.  Arrays are dense over the box; the work per leaf is in proportion to
 the cells of its cube.
 """
 
@@ -59,9 +60,9 @@ def leaves_of(octree: Octree) -> Leaves:
 
 @dataclass
 class Grid:
-    """The finest grid over one shape's leaves: ``n`` cells per unit length, the box ``origin`` (in
-    finest cells), the owning leaf of every cell (-1: none), and at corners near a plane the
-    planes' mean value (negative inside) and the nearest plane's leaf.
+    """The finest grid over one shape's leaves: ``n`` cells per unit length, the finest cell
+    ``origin`` of array cell 0, the owning leaf of every cell (-1: none), and at corners near a
+    plane the planes' mean value (negative inside) and the nearest plane's leaf.
 
     Invariant: ``near`` holds every corner of a cell whose owner's plane passes within ``band``
     cell diagonals of the cell's centre (a *band* cell); ``value`` there is the mean of the planes'
@@ -81,25 +82,26 @@ class Grid:
         return 1.0 / self.n
 
     def corner_positions(self, index: np.ndarray) -> np.ndarray:
-        """Cube coordinates of corners given as (M, 3) padded grid indices."""
-        return (index + self.origin - PAD) * self.h
+        """Cube coordinates of corners given as (M, 3) array indices."""
+        return (index + self.origin) * self.h
 
 
-def build_grid(leaves: Leaves, depth: int, band: float = 1.0) -> Grid:
-    """Rasterise ``leaves`` onto the finest grid of ``depth`` over their bounding box; a cell is
-    near its owner's plane when the plane passes within ``band`` cell diagonals of its centre."""
+def build_grid(leaves: Leaves, depth: int, band: float = 1.0, align: int = 1) -> Grid:
+    """Rasterise ``leaves`` onto the finest grid of ``depth`` over their bounding box (bounds
+    multiples of ``align`` cells); a cell is near its owner's plane when the plane passes within
+    ``band`` cell diagonals of its centre."""
     n = 1 << depth
     h = 1.0 / n
-    origin = leaves.origin.min(0)
-    size = (leaves.origin + leaves.cells[:, None]).max(0) - origin
-    owner = np.full(tuple(size + 2 * PAD), -1, np.int32)
-    shape = tuple(size + 2 * PAD + 1)
+    origin = (leaves.origin.min(0) - PAD) // align * align
+    size = -(-((leaves.origin + leaves.cells[:, None]).max(0) + PAD - origin) // align) * align
+    owner = np.full(tuple(size), -1, np.int32)
+    shape = tuple(size + 1)
     total = np.zeros(shape, np.float32)
     votes = np.zeros(shape, np.uint8)
     nearest = np.full(shape, np.inf, np.float32)
     leaf_at = np.full(shape, -1, np.int32)
     reach = band * np.sqrt(3.0) * h
-    shift = PAD - origin
+    shift = -origin
     for f in np.unique(leaves.cells):
         sel = np.flatnonzero(leaves.cells == f)
         sub = np.stack(np.meshgrid(*[np.arange(f)] * 3, indexing="ij"), -1).reshape(-1, 3)      # (f^3, 3)

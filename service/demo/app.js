@@ -103,6 +103,7 @@ function requestUrl(endpoint, format) {
   if (depth) q.set('depth', depth);
   if (endpoint !== 'classify') {
     if ($('color').checked) q.set('color_by_depth', 'true');
+    q.set('surface', $('surface').value);
     if (format) q.set('format', format);
   }
   const s = q.toString();
@@ -157,6 +158,8 @@ function showHeaders(response) {
   $('s-model').textContent = model ? `${model} ${h('X-Model-Version')}` : '(no model: octree)';
   $('s-nodes').textContent = h('X-Octree-Nodes');
   $('s-leaves').textContent = h('X-Octree-Leaves');
+  const closed = response.headers.get('X-Mesh-Closed');
+  $('s-surface').textContent = `${h('X-Surface')}${closed === 'true' ? ' (closed)' : closed === 'false' ? ' (open)' : ''}`;
   $('s-timing').textContent = h('Server-Timing');
 }
 

@@ -31,10 +31,11 @@ def validator(tmp_path_factory):
     return root
 
 
+@pytest.mark.parametrize("surface", ["watertight", "patches"])
 @pytest.mark.parametrize("fmt", ["glb", "gltf"])
 @pytest.mark.parametrize("color", [False, True])
-def test_meshes_pass_the_khronos_validator_without_errors_or_warnings(client, validator, tmp_path, fmt, color):
-    r = client.post(f"/v1/image-to-shape?format={fmt}&color_by_depth={str(color).lower()}",
+def test_meshes_pass_the_khronos_validator_without_errors_or_warnings(client, validator, tmp_path, fmt, color, surface):
+    r = client.post(f"/v1/image-to-shape?format={fmt}&color_by_depth={str(color).lower()}&surface={surface}",
                     files={"image": ("p.png", photo())})
     assert r.status_code == 200
     path = tmp_path / f"out.{fmt}"

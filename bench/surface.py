@@ -1,0 +1,137 @@
+"""Closed-surface extraction speed: :func:`model.surface.watertight_mesh` against depth and leaf
+count, beside scikit-image's ``marching_cubes`` on the dense grid of the same resolution.
+
+For each input octree, the extraction runs ``--repeats`` times after one warm-up (one thread for
+NumPy's BLAS: the service's inference threads run beside it); the table gives the median and
+the worst.  The reference is ``skimage.measure.marching_cubes`` (Lewiner) on the full (2^D + 1)^3
+grid of the unit cube, fed the same inside/outside field as floats: what contouring the dense
+grid costs by itself, before any field is computed.  Inputs: the test meshes' octrees (the
+generated ones of ``tests/meshes.py``, and the research meshes of ``--mesh-dir`` where present),
+built from virtual scans as the dataset does, and the shipped image model's outputs on
+``--data``'s test split where that dataset exists.
+
+    python -m bench.surface [--depths 6 7 8] [--repeats 5] [--data data/procedural] [--shapes 12]
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from model.cli import command_parser
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def timed(fn, repeats: int) -> tuple[float, float, object]:
+    """(median seconds, worst seconds, last result) of ``repeats`` calls after a warm-up."""
+    out = fn()
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t)
+    return float(np.median(times)), float(max(times)), out
+
+
+def dense_reference(octree) -> float:
+    """Seconds of skimage's marching cubes on the dense (2^D + 3)^3 corner grid of the same
+    inside/outside field (padded so that the surface closes)."""
+    from skimage.measure import marching_cubes
+
+    from model.surface.grid import PAD, build_grid, leaves_of
+    from model.surface.sign import inside_corners
+
+    leaves = leaves_of(octree)
+    grid = build_grid(leaves, octree.depth)
+    inside = inside_corners(grid)
+    n = 1 << octree.depth
+    field = np.zeros((n + 2 * PAD + 1,) * 3, np.float32)
+    lo = grid.origin
+    sx, sy, sz = inside.shape
+    field[lo[0]:lo[0] + sx, lo[1]:lo[1] + sy, lo[2]:lo[2] + sz] = inside
+    t = time.perf_counter()
+    marching_cubes(field, 0.5, method="lewiner")
+    return time.perf_counter() - t
+
+
+def scanned_octrees(depths: list[int], mesh_dir: str) -> list[tuple[str, object]]:
+    import trimesh
+
+    from model.data.scanner import scan
+    from model.octree import build_octree
+
+    sys.path.insert(0, str(REPO))
+    from tests.meshes import GENERATED, mesh_path
+
+    names = list(GENERATED) + (sorted(os.listdir(mesh_dir)) if os.path.isdir(mesh_dir) else [])
+    out = []
+    for name in names:
+        if not name.endswith((".obj", ".off", ".stl", ".ply")):
+            continue
+        path = mesh_path(name) if name in GENERATED else os.path.join(mesh_dir, name)
+        pts, nrm = scan(trimesh.load(path, force="mesh"), resolution=256)
+        for depth in depths:
+            out.append((f"{name} d{depth}", build_octree((pts.astype(float), nrm.astype(float)), depth, neighbors=False)))
+    return out
+
+
+def decoded_octrees(data: str, shapes: int) -> list[tuple[str, object]]:
+    """The shipped image model's outputs for the first render of test shapes (one per category in turn)."""
+    import json
+
+    from export.bundle import load_bundle
+    from export.runtime import Runtime
+    from model.data.dataset import load_record
+    from model.octree.batch import split_octree
+    from model.preprocess import prepare_image
+
+    manifest = Path(data) / "manifest.json"
+    if not manifest.is_file():
+        return []
+    runtime = Runtime(load_bundle(REPO / "models" / "bundles" / "image-to-shape"), threads=1)
+    rows = [r for r in json.loads(manifest.read_text())["records"] if r["split"] == "test"]
+    step = max(1, len(rows) // shapes)
+    out = []
+    for r in rows[::step][:shapes]:
+        image = prepare_image(load_record(Path(data) / r["path"])["images"][0], runtime.bundle.image_spec())
+        tree = split_octree(runtime.decode(runtime.encode_image(image[None])), neighbors=False)[0]
+        out.append((f"decoded {r['category']}", tree))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = command_parser("python -m bench.surface", __doc__, [
+        "python -m bench.surface --depths 6 7 --repeats 5",
+        "python -m bench.surface --depths 6 --data data/procedural --shapes 26"])
+    ap.add_argument("--depths", type=int, nargs="+", default=[6, 7, 8], help="octree depths of the meshes (default 6 7 8)")
+    ap.add_argument("--repeats", type=int, default=5, help="timed runs per input after a warm-up (default 5)")
+    ap.add_argument("--mesh-dir", default=str(REPO.parent / "shared" / "meshes"),
+                    help="more real meshes, where present (default: ../shared/meshes beside the checkout)")
+    ap.add_argument("--data", default="data/procedural",
+                    help="a dataset whose test renders go through the shipped image model (default data/procedural)")
+    ap.add_argument("--shapes", type=int, default=12, help="decoded shapes (default 12)")
+    args = ap.parse_args(argv)
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    from model.octree.patches import patch_mesh
+    from model.surface import watertight_mesh
+
+    inputs = decoded_octrees(args.data, args.shapes) + scanned_octrees(args.depths, args.mesh_dir)
+    print("| input | leaves | patch faces | closed faces | ratio | closed | median ms | worst ms | dense MC ms | worst / dense |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, tree in inputs:
+        med, worst, m = timed(lambda: watertight_mesh(tree, world=False), args.repeats)
+        patches = len(patch_mesh(tree, world=False).faces)
+        dense = dense_reference(tree)
+        print(f"| {name} | {sum(tree.leaves_per_depth())} | {patches} | {len(m.faces)} | {len(m.faces) / max(patches, 1):.1f} "
+              f"| {'yes' if m.closed else 'NO'} | {med * 1e3:.1f} | {worst * 1e3:.1f} | {dense * 1e3:.1f} | {worst / dense:.2f} |",
+              flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,44 @@
+"""What a closed mesh must satisfy, checked on the result rather than assumed."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def is_closed(faces: np.ndarray) -> bool:
+    """Every directed edge appears once and its reverse once: closed and consistently wound."""
+    if not len(faces):
+        return True
+    n = int(faces.max()) + 1
+    a = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2]]).astype(np.int64)
+    b = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]]).astype(np.int64)
+    directed = np.sort(a * n + b)
+    if np.any(directed[1:] == directed[:-1]):
+        return False                                   # an edge traversed twice the same way
+    return bool(np.array_equal(directed, np.sort(b * n + a)))
+
+
+def is_manifold(faces: np.ndarray) -> bool:
+    """Closed and consistently wound (:func:`is_closed`), and every vertex's faces form a single fan
+    around it (no two surfaces pinched at one vertex): a closed oriented 2-manifold."""
+    if not is_closed(faces):
+        return False
+    if not len(faces):
+        return True
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    f = len(faces)
+    n = int(faces.max()) + 1
+    corner = np.arange(3 * f).reshape(f, 3)                     # corner (face, j) holds vertex faces[face, j]
+    # the corner at the start of each directed edge v -> w, and at the end of its reverse w -> v
+    start = corner.ravel()
+    key = faces.ravel() * n + np.roll(faces, -1, axis=1).ravel()
+    back = np.roll(corner, -1, axis=1).ravel()                  # the corner of w in the same face
+    order = np.argsort(key)
+    rev_key = np.roll(faces, -1, axis=1).ravel() * n + faces.ravel()
+    partner = order[np.searchsorted(key[order], rev_key)]       # the face edge w -> v, seen from v -> w
+    # corners of v around the shared edge: (v in this face) ~ (v at the end of the partner edge)
+    graph = coo_matrix((np.ones(3 * f, np.int8), (start, back[partner])), shape=(3 * f, 3 * f))
+    fans, _ = connected_components(graph, directed=False)
+    return fans == len(np.unique(faces))
