@@ -12,7 +12,6 @@ from PIL import Image
 from export.bundle import load_bundle
 from export.runtime import Runtime
 from model.files import sha256_file
-from model.octree.patches import patches_to_mesh
 from model.surface import surface_mesh
 
 from .conftest import make_client
