@@ -44,6 +44,7 @@ class Request:
     timer: StageTimer
     filename: str | None = None
     surface: str = DEFAULT_SURFACE
+    faces: int | None = None
 
 
 @dataclass
@@ -182,7 +183,7 @@ class Engine:
                 i, x = ready[k]
                 tree.normalizations = [frame(x)]
                 try:
-                    out[i] = _mesh(tree, items[i].fmt, items[i].color, items[i].timer, items[i].surface)
+                    out[i] = _mesh(tree, items[i].fmt, items[i].color, items[i].timer, items[i].surface, items[i].faces)
                 except APIError as exc:
                     out[i] = exc
         return out
@@ -208,21 +209,21 @@ class Engine:
             return served.runtime.classify(served.runtime.encode_octree(merge_octrees(trees)))
 
     def octree(self, data: bytes, filename: str | None, depth: int, threshold: float | None, full: bool, fmt: str,
-               color: bool, timer: StageTimer, surface: str = DEFAULT_SURFACE) -> MeshFile:
+               color: bool, timer: StageTimer, surface: str = DEFAULT_SURFACE, faces: int | None = None) -> MeshFile:
         with timer("decode_input"):
             loaded = shape_input(data, filename, depth, self.settings.max_points, self.settings.max_npz_bytes, "shape")
         with timer("octree_build"):
             tree = build_octree(loaded.cloud, depth, adaptive=not full, neighbors=False,
                                 sample_spacing=loaded.sample_spacing, **({"threshold": threshold} if threshold else {}))
-        return _mesh(tree, fmt, color, timer, surface)
+        return _mesh(tree, fmt, color, timer, surface, faces)
 
 
-def _mesh(octree, fmt: str, color: bool, timer: StageTimer, surface: str) -> MeshFile:
+def _mesh(octree, fmt: str, color: bool, timer: StageTimer, surface: str, faces: int | None = None) -> MeshFile:
     if not any(octree.leaves_per_depth()):
         raise APIError(422, "empty_output", "the model decoded no surface from this input",
                        "send a photo or scan of one object, centred, on a plain background")
     with timer("surface"):
-        m = surface_mesh(octree, surface)
+        m = surface_mesh(octree, surface, faces=faces)
     with timer("mesh_encode"):
         return encode(m, octree, fmt, color)
 

@@ -44,6 +44,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--surface", choices=SURFACES, default=DEFAULT_SURFACE,
                     help=f"watertight: a closed, consistently oriented 2-manifold mesh; patches: one planar patch "
                          f"per leaf, the paper's output (default {DEFAULT_SURFACE})")
+    ap.add_argument("--faces", type=int, default=None,
+                    help="a face budget for the watertight surface, met by simplification that keeps it closed "
+                         "(default: none)")
     ap.add_argument("--stats", default=None, help="write statistics as JSON here")
     ap.add_argument("--color-by-depth", action="store_true", help="colour the mesh by the depth of the leaves")
     ap.add_argument("--seed", type=int, default=0, help="seed of the mesh sampling")
@@ -84,6 +87,8 @@ def run(args: argparse.Namespace) -> dict:
         folder = os.path.dirname(os.path.abspath(target))
         if not os.path.isdir(folder):
             raise OctreeInputError(f"{target}: the folder {folder} does not exist")
+    if args.faces is not None and (args.faces < 4 or args.surface != "watertight"):
+        raise OctreeInputError("--faces must be at least 4, with --surface watertight")
     if not 1 <= args.depth <= MAX_BUILD_DEPTH:
         raise OctreeInputError(f"--depth must be in 1..{MAX_BUILD_DEPTH}, got {args.depth}")
     loaded = load_input(args.input, args.depth, args.points, args.seed)
@@ -91,7 +96,7 @@ def run(args: argparse.Namespace) -> dict:
     octree = build_octree(loaded.cloud, args.depth, adaptive=not args.full, threshold=args.threshold,
                           neighbors=False, measure_leaves=True, sample_spacing=loaded.sample_spacing)
     seconds = time.perf_counter() - t
-    m = surface_mesh(octree, args.surface)
+    m = surface_mesh(octree, args.surface, faces=args.faces)
     colors = depth_colors(m.vertex_depth) if args.color_by_depth else None
     mesh = trimesh.Trimesh(m.vertices, m.faces, vertex_colors=colors, process=False)
     data = mesh.export(file_type=ext[1:])

@@ -19,10 +19,11 @@ from scipy.sparse.csgraph import connected_components
 
 from ..octree import Octree
 from ..octree.patches import patch_mesh
-from .checks import is_closed, is_manifold
+from .checks import is_closed
 from .dmc import contour
 from .grid import build_grid, leaves_of
 from .sign import inside_corners
+from .simplify import simplify
 
 SURFACES = ("watertight", "patches")
 """The surfaces a decoded octree can be meshed as: closed (this package) or the paper's patches."""
@@ -47,15 +48,23 @@ class SurfaceMesh:
     closed: bool
 
 
-def surface_mesh(octree: Octree, kind: str = "watertight", world: bool = True) -> SurfaceMesh:
+def surface_mesh(octree: Octree, kind: str = DEFAULT_SURFACE, world: bool = True,
+                 faces: int | None = None) -> SurfaceMesh:
     """The mesh of a single-shape octree's leaves, as ``kind`` (:data:`SURFACES`), in the input's
-    coordinates unless ``world`` is False (then in the unit cube)."""
+    coordinates unless ``world`` is False (then in the unit cube).  ``faces``: a face budget for
+    the closed surface, met by simplification that keeps it closed (:mod:`model.surface.simplify`)."""
     if kind not in SURFACES:
         raise ValueError(f"surface must be one of {', '.join(SURFACES)}, got {kind!r}")
     if kind == "patches":
+        if faces is not None:
+            raise ValueError("a face budget applies to the watertight surface only (patches are one per leaf)")
         m = patch_mesh(octree, world)
         return SurfaceMesh(kind, m.vertices, m.faces, m.vertex_depth, is_closed(m.faces))
-    return watertight_mesh(octree, world)
+    m = watertight_mesh(octree, world)
+    if faces is None or len(m.faces) <= faces:
+        return m
+    verts, tris, depth, _ = simplify(m.vertices, m.faces, faces, m.vertex_depth)
+    return SurfaceMesh(m.kind, verts, tris, depth, is_closed(tris))
 
 
 def watertight_mesh(octree: Octree, world: bool = True, min_component_faces: int = MIN_COMPONENT_FACES) -> SurfaceMesh:
@@ -74,7 +83,7 @@ def watertight_mesh(octree: Octree, world: bool = True, min_component_faces: int
     verts, depth = np.clip(verts[keep], 0.0, 1.0), depth[keep]      # the octree's cube is its domain
     if world:
         verts = octree.normalizations[0].to_world(verts)
-    return SurfaceMesh("watertight", verts, faces, depth, is_manifold(faces))
+    return SurfaceMesh("watertight", verts, faces, depth, is_closed(faces))
 
 
 def drop_small_components(nverts: int, faces: np.ndarray, min_faces: int) -> tuple[np.ndarray, np.ndarray]:

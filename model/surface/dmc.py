@@ -40,16 +40,16 @@ def repair(inside: np.ndarray, max_rounds: int = 64) -> tuple[np.ndarray, np.nda
         config = configurations(inside)
         fix = REPAIR[config]
         cells = np.argwhere(fix >= 0)
-        if not len(cells):
-            break
         corner = cells + CORNER_OFFSETS[fix[cells[:, 0], cells[:, 1], cells[:, 2]]]
-        inner = np.all((corner > 0) & (corner < np.array(inside.shape) - 1), axis=1)
-        if not inner.any():
-            break
-        corner = corner[inner]
+        corner = corner[np.all((corner > 0) & (corner < np.array(inside.shape) - 1), axis=1)]
+        if not len(corner):
+            filled = fill_cavities(inside)                      # a repair may have closed a pocket
+            if np.array_equal(filled, inside):
+                return inside, config, turned
+            inside = filled
+            continue
         inside[corner[:, 0], corner[:, 1], corner[:, 2]] = True
         turned += len(np.unique(corner, axis=0))
-        inside = fill_cavities(inside)
     return inside, configurations(inside), turned
 
 
@@ -99,52 +99,61 @@ def _place(grid: Grid, leaves: Leaves, vertex_cell: np.ndarray, cells: np.ndarra
            axis: np.ndarray, out_first: np.ndarray, rings: np.ndarray) -> np.ndarray:
     """Each vertex at the least-squares point of the leaf planes around its crossing edges (the
     planes of the leaves owning the 4 cells around each edge: one plane inside a leaf, two or
-    three where leaves meet at an edge or corner), regularised towards the mean crossing point,
-    and kept inside its cell.  An edge with no leaf around it (a surface the sign field closed)
-    constrains its vertices to the plane across the edge through its inside corner; and where a
-    leaf's plane does not cross the edge it meets (the end of a thin part, a closed gap), its
-    point is the inside corner too: such surfaces close at the last inside corner, not further."""
+    three where leaves meet at an edge or corner), held by a small pull towards the mean crossing
+    point where the planes leave a direction free (Tikhonov), and kept inside its cell.  An edge
+    with no leaf around it (a surface the sign field closed) constrains its vertices to the plane
+    across the edge through its inside corner; and where a leaf's plane does not cross the edge
+    it meets (the end of a thin part, a closed gap), its point is the inside corner too: such
+    surfaces close at the last inside corner, not further."""
     h = grid.h
     nverts = len(vertex_cell)
     a_pos = grid.corner_positions(p)
     direction = np.eye(3)[axis]
     owners = grid.owner.ravel()[cells]                          # (E, 4) leaf or -1
     free = (owners < 0).all(1)                                   # no leaf around the edge
-    normals, consts, points, targets = [], [], [], []
     inner = a_pos + out_first[:, None] * h * direction        # the edge's inside corner
+    # per edge: the sums over its planes (each owner of the 4 cells counts once per cell)
+    quad = np.zeros((len(p), 6))                                 # n n^T: xx xy xz yy yz zz
+    lin = np.zeros((len(p), 3))                                  # -c n
+    mass = np.zeros((len(p), 3))                                 # crossing points
+    hits = np.zeros(len(p))
     for k in range(4):
         o = owners[:, k]
         has = o >= 0
         use = has | (free & (k == 0))                           # a free edge constrains once
-        o, n_dir, inner_k = o[use], direction[use], inner[use]
-        has = has[use]
-        n = np.where(has[:, None], leaves.normal[np.maximum(o, 0)], n_dir)
-        c = np.where(has, leaves.const[np.maximum(o, 0)], -np.einsum("ij,ij->i", n_dir, inner_k))
-        fa = np.einsum("ij,ij->i", n, a_pos[use]) + c            # the plane n.x + c = 0 along the edge
-        fb = fa + np.einsum("ij,ij->i", n, n_dir) * h
+        n = np.where(has[:, None], leaves.normal[np.maximum(o, 0)], direction)
+        c = np.where(has, leaves.const[np.maximum(o, 0)], -np.einsum("ij,ij->i", direction, inner))
+        fa = np.einsum("ij,ij->i", n, a_pos) + c                 # the plane n.x + c = 0 along the edge
+        fb = fa + n[np.arange(len(p)), axis] * h
         crosses = (fa <= 0) != (fb <= 0)
-        t = np.where(crosses, fa / np.where(crosses, fa - fb, 1.0), out_first[use].astype(np.float64))
-        point = a_pos[use] + t[:, None] * h * n_dir
-        for j in range(4):                                      # every vertex around the edge
-            normals.append(n)
-            consts.append(c)
-            points.append(point)
-            targets.append(rings[use, j])
-    n, c, point, v = (np.concatenate(x) for x in (normals, consts, points, targets))
-    prods = n[:, [0, 0, 0, 1, 1, 2]] * n[:, [0, 1, 2, 1, 2, 2]]
-    A = np.empty((nverts, 3, 3))
-    for k, (i, j) in enumerate(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
-        A[:, i, j] = A[:, j, i] = np.bincount(v, prods[:, k], minlength=nverts)
-    rhs = np.stack([np.bincount(v, -c * n[:, i], minlength=nverts) for i in range(3)], 1)
-    hits = np.maximum(np.bincount(v, minlength=nverts), 1)
-    mass = np.stack([np.bincount(v, point[:, i], minlength=nverts) for i in range(3)], 1) / hits[:, None]
-    b = rhs - np.einsum("vij,vj->vi", A, mass)
-    w, q = np.linalg.eigh(A)                                     # A = q diag(w) q^T
-    keep = w > 0.05 * w[:, -1:]
-    inv = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
-    x = mass + np.einsum("vij,vj,vkj,vk->vi", q, inv, q, b)
+        t = np.where(crosses, fa / np.where(crosses, fa - fb, 1.0), out_first.astype(np.float64))
+        w = use.astype(np.float64)
+        quad += w[:, None] * n[:, [0, 0, 0, 1, 1, 2]] * n[:, [0, 1, 2, 1, 2, 2]]
+        lin -= (w * c)[:, None] * n
+        mass += w[:, None] * (a_pos + (t * h)[:, None] * direction)
+        hits += w
+    v = rings.T.ravel()                                         # every vertex around each edge
+    edge = np.tile(np.arange(len(p)), 4)
+    acc = np.concatenate([quad, lin, mass, hits[:, None]], 1)[edge]
+    tot = np.stack([np.bincount(v, acc[:, j], minlength=nverts) for j in range(acc.shape[1])], 1)
+    xx, xy, xz, yy, yz, zz = tot[:, :6].T
+    point = tot[:, 9:12] / np.maximum(tot[:, 12:13], 1.0)
+    reg = 0.02 * (xx + yy + zz)[:, None] / 3.0 + 1e-12          # the pull towards the mean point
+    b = tot[:, 6:9] + reg * point
+    x = _solve_symmetric(xx + reg[:, 0], xy, xz, yy + reg[:, 0], yz, zz + reg[:, 0], b)
     lo = grid.corner_positions(vertex_cell)
     return np.clip(x, lo, lo + h)
+
+
+def _solve_symmetric(xx, xy, xz, yy, yz, zz, b: np.ndarray) -> np.ndarray:
+    """x with A x = b for many symmetric positive definite 3x3 A (adjugate over determinant)."""
+    c00, c01, c02 = yy * zz - yz * yz, xz * yz - xy * zz, xy * yz - xz * yy
+    c11, c12, c22 = xx * zz - xz * xz, xy * xz - xx * yz, xx * yy - xy * xy
+    det = xx * c00 + xy * c01 + xz * c02
+    inv = 1.0 / det
+    return np.stack([c00 * b[:, 0] + c01 * b[:, 1] + c02 * b[:, 2],
+                     c01 * b[:, 0] + c11 * b[:, 1] + c12 * b[:, 2],
+                     c02 * b[:, 0] + c12 * b[:, 1] + c22 * b[:, 2]], 1) * inv[:, None]
 
 
 def _vertex_cells(shape: tuple, first: np.ndarray) -> np.ndarray:

@@ -96,29 +96,36 @@ def build_grid(leaves: Leaves, depth: int, band: float = 1.0, align: int = 1) ->
     size = -(-((leaves.origin + leaves.cells[:, None]).max(0) + PAD - origin) // align) * align
     owner = np.full(tuple(size), -1, np.int32)
     shape = tuple(size + 1)
-    total = np.zeros(shape, np.float32)
-    votes = np.zeros(shape, np.uint8)
-    nearest = np.full(shape, np.inf, np.float32)
-    leaf_at = np.full(shape, -1, np.int32)
+    total = np.zeros(int(np.prod(shape)), np.float32)             # flat over the corners
+    votes = np.zeros(total.size, np.uint8)
+    nearest = np.full(total.size, np.inf, np.float32)
+    leaf_at = np.full(total.size, -1, np.int32)
     reach = band * np.sqrt(3.0) * h
-    shift = -origin
+    strides = np.array([shape[1] * shape[2], shape[2], 1])
+    corner_step = CORNER_OFFSETS @ strides                        # flat offset of each cell corner
+    flat_owner = owner.ravel()
+    cell_strides = np.array([size[1] * size[2], size[2], 1])
     for f in np.unique(leaves.cells):
         sel = np.flatnonzero(leaves.cells == f)
         sub = np.stack(np.meshgrid(*[np.arange(f)] * 3, indexing="ij"), -1).reshape(-1, 3)      # (f^3, 3)
-        cells = (leaves.origin[sel, None, :] + sub[None]).reshape(-1, 3)                         # finest cells
+        index = (leaves.origin[sel, None, :] - origin + sub[None]).reshape(-1, 3)                 # array cells
         ids = np.repeat(sel, len(sub))
-        index = cells + shift
-        owner[index[:, 0], index[:, 1], index[:, 2]] = ids
-        close = np.abs(leaves.values(ids, (cells + 0.5) * h)) <= reach
-        cells, ids, index = cells[close], ids[close], index[close]
-        for off in CORNER_OFFSETS:                      # each pass maps the cells to distinct corners
-            v = leaves.values(ids, (cells + off) * h).astype(np.float32)
-            x, y, z = (index + off).T
-            total[x, y, z] += v
-            votes[x, y, z] += 1
-            better = np.abs(v) < nearest[x, y, z]
-            nearest[x[better], y[better], z[better]] = np.abs(v[better])
-            leaf_at[x[better], y[better], z[better]] = ids[better]
+        flat_owner[index @ cell_strides] = ids
+        normal = leaves.normal[ids]
+        centre = np.einsum("ij,ij->i", (index + origin + 0.5) * h, normal) + leaves.const[ids]   # plane at the centre
+        close = np.abs(centre) <= reach
+        index, ids, normal, centre = index[close], ids[close], normal[close], centre[close]
+        base = index @ strides
+        for off, step in zip(CORNER_OFFSETS - 0.5, corner_step):   # each pass maps the cells to distinct corners
+            v = (centre + (normal @ off) * h).astype(np.float32)
+            at = base + step
+            total[at] += v
+            votes[at] += 1
+            a = np.abs(v)
+            better = a < nearest[at]
+            nearest[at[better]] = a[better]
+            leaf_at[at[better]] = ids[better]
     near = votes > 0
     value = np.where(near, total / np.maximum(votes, 1), np.inf).astype(np.float32)
+    near, value, leaf_at = near.reshape(shape), value.reshape(shape), leaf_at.reshape(shape)
     return Grid(n, origin, owner, near, value, leaf_at)

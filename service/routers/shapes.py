@@ -26,6 +26,8 @@ FORMAT_Q = Query(None, description="glb (default), gltf, ply or obj; an Accept h
 DEPTH_Q = Query(None, ge=1, le=MAX_BUILD_DEPTH, description="decode only down to this depth (a coarser, faster level "
                 "of detail; the model's range is in GET /v1/models: min_depth..depth)")
 COLOR_Q = Query(False, description="colour the mesh by the octree depth of the leaf each vertex comes from")
+FACES_Q = Query(None, ge=4, le=10_000_000, description="a face budget for the watertight surface: simplified "
+                "(staying closed) until it has at most this many faces")
 SURFACE_Q = Query(DEFAULT_SURFACE, description="watertight: a closed, consistently oriented 2-manifold mesh (it "
                   "can be 3D-printed, voxelised or used as a collider); patches: the paper's output, one planar "
                   "patch per octree leaf, with cracks between them")
@@ -42,6 +44,12 @@ def mesh_response(mesh: MeshFile, name: str, timer: StageTimer, model: str = "",
     return Response(mesh.data, media_type=mesh.media_type, headers=headers)
 
 
+def _check_faces(surface: str, faces: int | None) -> None:
+    if faces is not None and surface != "watertight":
+        raise APIError(422, "invalid_request", "faces applies to surface=watertight only (patches are one per leaf)",
+                       "drop faces, or ask for surface=watertight")
+
+
 async def _read(upload: UploadFile) -> tuple[bytes, str | None]:
     return await upload.read(), upload.filename
 
@@ -55,13 +63,14 @@ async def _submit(eng: Engine, task: str, request: Request) -> MeshFile:
              summary="A photo of one object -> its 3D shape as a mesh (closed, or the leaf patches)")
 async def image_to_shape(image: UploadFile = File(..., description="PNG, JPEG, WebP, GIF, BMP or TIFF of one object"),
                          format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q, surface: Surface = SURFACE_Q,
-                         color_by_depth: bool = COLOR_Q, accept: str | None = Header(None),
+                         faces: int | None = FACES_Q, color_by_depth: bool = COLOR_Q, accept: str | None = Header(None),
                          eng: Engine = Depends(engine)) -> Response:
     b = eng.model("image-to-shape").bundle
+    _check_faces(surface, faces)
     data, _ = await _read(image)
     timer = StageTimer(eng.metrics)
     mesh = await _submit(eng, "image-to-shape", Request(data, choose_format(format, accept), depth, color_by_depth, timer,
-                                                        surface=surface))
+                                                        surface=surface, faces=faces))
     return mesh_response(mesh, "shape", timer, b.name, b.version)
 
 
@@ -70,13 +79,15 @@ async def image_to_shape(image: UploadFile = File(..., description="PNG, JPEG, W
 async def complete(points: UploadFile = File(..., description="PLY (ascii/binary), XYZ/TXT, NPY, NPZ or OBJ "
                                               "vertices, with or without normals"),
                    format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q, surface: Surface = SURFACE_Q,
-                   color_by_depth: bool = COLOR_Q, accept: str | None = Header(None),
+                   faces: int | None = FACES_Q, color_by_depth: bool = COLOR_Q, accept: str | None = Header(None),
                    eng: Engine = Depends(engine)) -> Response:
     b = eng.model("completion").bundle
+    _check_faces(surface, faces)
     data, filename = await _read(points)
     timer = StageTimer(eng.metrics)
     mesh = await _submit(eng, "completion",
-                         Request(data, choose_format(format, accept), depth, color_by_depth, timer, filename, surface))
+                         Request(data, choose_format(format, accept), depth, color_by_depth, timer, filename, surface,
+                                 faces))
     return mesh_response(mesh, "completed", timer, b.name, b.version)
 
 
@@ -88,8 +99,10 @@ async def octree(shape: UploadFile = File(..., description="a mesh (OBJ, OFF, ST
                  threshold: float | None = Query(None, gt=0, le=64, description="split threshold in finest voxels "
                                                  "(default the paper's sqrt(3)/2)"),
                  full: bool = Query(False, description="the full O-CNN octree instead of the adaptive one"),
-                 format: Format | None = FORMAT_Q, surface: Surface = SURFACE_Q, color_by_depth: bool = COLOR_Q,
-                 accept: str | None = Header(None), eng: Engine = Depends(engine)) -> Response:
+                 format: Format | None = FORMAT_Q, surface: Surface = SURFACE_Q, faces: int | None = FACES_Q,
+                 color_by_depth: bool = COLOR_Q, accept: str | None = Header(None),
+                 eng: Engine = Depends(engine)) -> Response:
+    _check_faces(surface, faces)
     if depth > eng.settings.max_octree_depth:
         raise APIError(422, "invalid_depth", f"depth must be at most {eng.settings.max_octree_depth}, got {depth}",
                        "ask for a smaller depth (or raise AOCNN_MAX_OCTREE_DEPTH)")
@@ -97,7 +110,7 @@ async def octree(shape: UploadFile = File(..., description="a mesh (OBJ, OFF, ST
     fmt = choose_format(format, accept)
     timer = StageTimer(eng.metrics)
     mesh = await eng.limiter.run(
-        lambda: eng.octree(data, filename, depth, threshold, full, fmt, color_by_depth, timer, surface),
+        lambda: eng.octree(data, filename, depth, threshold, full, fmt, color_by_depth, timer, surface, faces),
         eng.settings.timeout_s)
     return mesh_response(mesh, "octree", timer)
 

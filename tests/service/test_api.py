@@ -290,3 +290,20 @@ def test_accept_header_negotiation(accept, fmt):
     from service.meshes import choose_format
     assert choose_format(None, accept) == fmt
     assert choose_format("ply", accept) == "ply"                 # the format parameter wins
+
+
+def test_surface_and_face_budget_parameters(client):
+    data = trimesh.creation.icosphere(3).export(file_type="obj").encode()
+    r = client.post("/v1/octree?depth=6&format=ply", files={"shape": ("s.obj", data)})
+    assert r.status_code == 200 and r.headers["x-surface"] == "watertight" and r.headers["x-mesh-closed"] == "true"
+    full = int(r.headers["x-mesh-faces"])
+    r = client.post("/v1/octree?depth=6&format=ply&faces=500", files={"shape": ("s.obj", data)})
+    assert r.status_code == 200 and int(r.headers["x-mesh-faces"]) <= 500 < full
+    mesh = trimesh.load(io.BytesIO(r.content), file_type="ply", process=False)
+    assert len(mesh.faces) <= 500 and mesh.is_watertight and r.headers["x-mesh-closed"] == "true"
+    bad = client.post("/v1/octree?depth=6&surface=smooth", files={"shape": ("s.obj", data)})
+    assert bad.status_code == 422 and "'watertight' or 'patches'" in bad.json()["error"]["message"]
+    bad = client.post("/v1/octree?depth=6&surface=patches&faces=500", files={"shape": ("s.obj", data)})
+    assert bad.status_code == 422 and "surface=watertight" in bad.json()["error"]["message"]
+    bad = client.post("/v1/octree?depth=6&faces=2", files={"shape": ("s.obj", data)})
+    assert bad.status_code == 422 and "faces" in bad.json()["error"]["message"]

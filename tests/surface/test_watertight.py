@@ -149,3 +149,18 @@ def test_an_octree_without_leaves_gives_an_empty_mesh_and_surfaces_are_named():
     assert SURFACES == ("watertight", "patches")
     with pytest.raises(ValueError, match="watertight, patches"):
         surface_mesh(o, "smooth")
+
+
+@pytest.mark.parametrize("budget, volume_change", [(4000, 0.05), (800, 0.2)])
+def test_a_face_budget_is_met_and_the_mesh_stays_closed(budget, volume_change):
+    o = octree_of(trimesh.load(mesh_path("knot.ply"), force="mesh"), 6)
+    full = watertight_mesh(o)
+    m = surface_mesh(o, "watertight", faces=budget)
+    assert len(full.faces) > 4 * budget and len(m.faces) <= budget
+    mesh = check_closed(m)
+    assert mesh.euler_number == 0                                   # still a knot
+    assert len(m.vertex_depth) == len(m.vertices)
+    full_mesh = trimesh.Trimesh(full.vertices, full.faces, process=False)
+    assert mesh.volume == pytest.approx(full_mesh.volume, rel=volume_change)     # a tube at 800 faces thins
+    with pytest.raises(ValueError, match="watertight surface only"):
+        surface_mesh(o, "patches", faces=budget)
