@@ -42,17 +42,18 @@ def _rss_mb(pid: int) -> float:
     return float("nan")
 
 
-def _model_seconds(timing: str) -> float:
-    out = 0.0
+def _stages(timing: str) -> dict[str, float]:
+    """Seconds per stage of a Server-Timing header."""
+    out = {}
     for part in timing.split(","):
         name, _, dur = part.strip().partition(";dur=")
-        if name in ("encoder", "decoder") and dur:
-            out += float(dur) / 1e3
+        if dur:
+            out[name] = float(dur) / 1e3
     return out
 
 
 async def _run(url: str, field: str, data: bytes, name: str, concurrency: int, seconds: float, pid: int) -> dict:
-    lat, outside, errors, codes = [], [], 0, {}
+    lat, outside, errors, codes, stages = [], [], 0, {}, {}
     rss = [_rss_mb(pid)]
     stop = time.perf_counter() + seconds
 
@@ -67,7 +68,10 @@ async def _run(url: str, field: str, data: bytes, name: str, concurrency: int, s
                 errors += 1
                 continue
             lat.append(dt)
-            outside.append(1 - _model_seconds(r.headers.get("server-timing", "")) / dt)
+            spent = _stages(r.headers.get("server-timing", ""))
+            outside.append(1 - (spent.get("encoder", 0) + spent.get("decoder", 0)) / dt)
+            for stage, sec in spent.items():
+                stages.setdefault(stage, []).append(sec)
 
     async def sample():
         while time.perf_counter() < stop:
@@ -82,13 +86,15 @@ async def _run(url: str, field: str, data: bytes, name: str, concurrency: int, s
     return {"concurrency": concurrency, "requests": len(lat) + errors, "errors": errors, "codes": codes,
             "throughput_rps": len(lat) / wall, "p50_ms": 1e3 * q[49], "p95_ms": 1e3 * q[94], "p99_ms": 1e3 * q[98],
             "outside_model_share": statistics.mean(outside) if outside else float("nan"),
-            "rss_start_mb": rss[0], "rss_end_mb": rss[-1], "rss_max_mb": max(rss)}
+            "rss_start_mb": rss[0], "rss_end_mb": rss[-1], "rss_max_mb": max(rss),
+            "stage_ms": {k: 1e3 * statistics.mean(v) for k, v in stages.items()}}
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = command_parser("python -m bench.load", __doc__, ['python -m bench.load --seconds 20 --concurrency 1 4 16'])
     ap.add_argument("--endpoint", choices=sorted(FIELDS), default="image-to-shape", help="default image-to-shape")
     ap.add_argument("--input", default="examples/chair_photo.jpg", help="file to upload (default the example photo)")
+    ap.add_argument("--query", default="", help="query parameters of every request, e.g. surface=patches (default: none)")
     ap.add_argument("--concurrency", type=int, nargs="+", default=[1, 4], help="requests in flight (default 1 4)")
     ap.add_argument("--seconds", type=float, default=60, help="duration per concurrency level (default 60)")
     ap.add_argument("--models-dir", default=None, help="bundles to serve (default the bundled ones)")
@@ -114,18 +120,20 @@ def main(argv: list[str] | None = None) -> int:
                 return 1
             time.sleep(0.5)
         data = Path(args.input).read_bytes()
-        rows = [asyncio.run(_run(f"{base}/v1/{args.endpoint}", FIELDS[args.endpoint], data, Path(args.input).name,
+        url = f"{base}/v1/{args.endpoint}" + (f"?{args.query}" if args.query else "")
+        rows = [asyncio.run(_run(url, FIELDS[args.endpoint], data, Path(args.input).name,
                                  c, args.seconds, server.pid)) for c in args.concurrency]
     finally:
         server.terminate()
         server.wait(timeout=30)
-    print(f"{args.endpoint}, {args.input}, {args.seconds:g} s per level, server env {args.env or 'defaults'}")
+    print(f"{args.endpoint}?{args.query}, {args.input}, {args.seconds:g} s per level, server env {args.env or 'defaults'}")
     print(f"{'conc':>4} {'req':>6} {'err':>4} {'rps':>7} {'p50 ms':>8} {'p95 ms':>8} {'p99 ms':>8} "
           f"{'outside model':>13} {'RSS start/end/max MB':>22}")
     for r in rows:
         print(f"{r['concurrency']:>4} {r['requests']:>6} {r['errors']:>4} {r['throughput_rps']:>7.2f} "
               f"{r['p50_ms']:>8.1f} {r['p95_ms']:>8.1f} {r['p99_ms']:>8.1f} {r['outside_model_share']:>13.0%} "
               f"{r['rss_start_mb']:>8.0f}/{r['rss_end_mb']:.0f}/{r['rss_max_mb']:.0f}")
+        print("     mean ms per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in r["stage_ms"].items()))
     print(f"targets: 0 errors and flat memory at concurrency 2x the CPUs; time outside the model <= "
           f"{TARGET_OUTSIDE:.0%} for image -> shape")
     if args.json:

@@ -11,6 +11,10 @@ built from virtual scans as the dataset does, and the shipped image model's outp
 ``--data``'s test split where that dataset exists.
 
     python -m bench.surface [--depths 6 7 8] [--repeats 5] [--data data/procedural] [--shapes 12]
+                            [--figure surfaces.png]
+
+``--figure`` draws, for each decoded shape and for the first depth's test meshes, the patches
+and the closed surface from the front and from behind.
 """
 
 from __future__ import annotations
@@ -48,7 +52,7 @@ def dense_reference(octree) -> float:
 
     leaves = leaves_of(octree)
     grid = build_grid(leaves, octree.depth)
-    inside = inside_corners(grid)
+    inside = inside_corners(grid, leaves)
     n = 1 << octree.depth
     field = np.zeros((n + 2 * PAD + 1,) * 3, np.float32)
     lo = grid.origin
@@ -115,6 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", default="data/procedural",
                     help="a dataset whose test renders go through the shipped image model (default data/procedural)")
     ap.add_argument("--shapes", type=int, default=12, help="decoded shapes (default 12)")
+    ap.add_argument("--figure", default=None, help="also draw the inputs' surfaces into this PNG (default: none)")
     args = ap.parse_args(argv)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     from model.octree.patches import patch_mesh
@@ -130,7 +135,40 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {name} | {sum(tree.leaves_per_depth())} | {patches} | {len(m.faces)} | {len(m.faces) / max(patches, 1):.1f} "
               f"| {'yes' if m.closed else 'NO'} | {med * 1e3:.1f} | {worst * 1e3:.1f} | {dense * 1e3:.1f} | {worst / dense:.2f} |",
               flush=True)
+    if args.figure:
+        figure([(n, t) for n, t in inputs if n.startswith("decoded") or n.endswith(f"d{args.depths[0]}")], args.figure)
     return 0
+
+
+def figure(inputs: list[tuple[str, object]], out: str) -> None:
+    """One row per input: patches, closed surface, closed surface seen from behind; its name."""
+    import trimesh
+    from PIL import Image, ImageDraw
+
+    from model.figures import TILE, VIEW, tile
+    from model.surface import surface_mesh
+
+    rows = []
+    for name, tree in inputs:
+        tiles = []
+        for kind, azimuth in (("patches", VIEW["azimuth_deg"]), ("watertight", VIEW["azimuth_deg"]),
+                              ("watertight", VIEW["azimuth_deg"] + 180)):
+            m = surface_mesh(tree, kind, world=False)
+            mesh = trimesh.Trimesh(m.vertices, m.faces, process=False)
+            if azimuth != VIEW["azimuth_deg"]:
+                mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi, (0, 1, 0), (0.5, 0.5, 0.5)))
+            tiles.append(tile(mesh))
+        row = Image.new("RGB", (3 * TILE, TILE + 16), (255, 255, 255))
+        for i, t in enumerate(tiles):
+            row.paste(t, (i * TILE, 16))
+        ImageDraw.Draw(row).text((4, 2), f"{name}: patches | closed | closed, behind", fill=(0, 0, 0))
+        rows.append(row)
+    sheet = Image.new("RGB", (3 * TILE, sum(r.height for r in rows)), (255, 255, 255))
+    y = 0
+    for r in rows:
+        sheet.paste(r, (0, y))
+        y += r.height
+    sheet.save(out)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,8 @@ from ..octree import Octree
 from ..octree.patches import patch_mesh
 from .checks import is_closed
 from .dmc import contour
-from .grid import build_grid, leaves_of
+from .grid import build_grid, leaves_of, rasterise
+from .orient import orient
 from .sign import inside_corners
 from .simplify import simplify
 
@@ -76,8 +77,10 @@ def watertight_mesh(octree: Octree, world: bool = True, min_component_faces: int
     leaves = leaves_of(octree)
     if not len(leaves):
         return SurfaceMesh("watertight", np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64), True)
-    grid = build_grid(leaves, octree.depth)
-    verts, faces, leaf = contour(grid, leaves, inside_corners(grid))
+    raster = rasterise(leaves)
+    leaves, _ = orient(leaves, raster[1], 1.0 / (1 << octree.depth))
+    grid = build_grid(leaves, octree.depth, raster=raster)
+    verts, faces, leaf = contour(grid, leaves, inside_corners(grid, leaves))
     depth = octree.depth - np.log2(np.where(leaf >= 0, leaves.cells[np.maximum(leaf, 0)], 1)).astype(np.int64)
     keep, faces = drop_small_components(len(verts), faces, min_component_faces)
     verts, depth = np.clip(verts[keep], 0.0, 1.0), depth[keep]      # the octree's cube is its domain

@@ -95,6 +95,10 @@ def contour(grid: Grid, leaves: Leaves, inside: np.ndarray) -> tuple[np.ndarray,
     return verts, _triangles(verts, rings), grid.owner[cell[:, 0], cell[:, 1], cell[:, 2]].astype(np.int64)
 
 
+BACK = 0.25
+"""How far behind a plane (in cells) the back of a part thinner than a cell is put."""
+
+
 def _place(grid: Grid, leaves: Leaves, vertex_cell: np.ndarray, cells: np.ndarray, p: np.ndarray,
            axis: np.ndarray, out_first: np.ndarray, rings: np.ndarray) -> np.ndarray:
     """Each vertex at the least-squares point of the leaf planes around its crossing edges (the
@@ -104,7 +108,12 @@ def _place(grid: Grid, leaves: Leaves, vertex_cell: np.ndarray, cells: np.ndarra
     with no leaf around it (a surface the sign field closed) constrains its vertices to the plane
     across the edge through its inside corner; and where a leaf's plane does not cross the edge
     it meets (the end of a thin part, a closed gap), its point is the inside corner too: such
-    surfaces close at the last inside corner, not further."""
+    surfaces close at the last inside corner, not further.
+
+    Where a plane faces away from the surface it meets (its normal against the edge's direction
+    from inside to outside: the back of a part thinner than a cell, which one plane stands for),
+    the vertex is held :data:`BACK` cells behind the plane instead, and may leave its cell by up to
+    a cell to get there: such parts come out about :data:`BACK` cells thick, not a whole cell."""
     h = grid.h
     nverts = len(vertex_cell)
     a_pos = grid.corner_positions(p)
@@ -117,12 +126,17 @@ def _place(grid: Grid, leaves: Leaves, vertex_cell: np.ndarray, cells: np.ndarra
     lin = np.zeros((len(p), 3))                                  # -c n
     mass = np.zeros((len(p), 3))                                 # crossing points
     hits = np.zeros(len(p))
+    back = np.zeros(len(p), bool)
+    outward = np.where(out_first, -1.0, 1.0)                     # along the axis, inside -> outside
     for k in range(4):
         o = owners[:, k]
         has = o >= 0
         use = has | (free & (k == 0))                           # a free edge constrains once
         n = np.where(has[:, None], leaves.normal[np.maximum(o, 0)], direction)
         c = np.where(has, leaves.const[np.maximum(o, 0)], -np.einsum("ij,ij->i", direction, inner))
+        behind = has & (n[np.arange(len(p)), axis] * outward < 0)
+        back |= behind & use
+        c = c + np.where(behind, BACK * h, 0.0)                   # n.x + c = -BACK h: just behind the plane
         fa = np.einsum("ij,ij->i", n, a_pos) + c                 # the plane n.x + c = 0 along the edge
         fb = fa + n[np.arange(len(p)), axis] * h
         crosses = (fa <= 0) != (fb <= 0)
@@ -142,7 +156,8 @@ def _place(grid: Grid, leaves: Leaves, vertex_cell: np.ndarray, cells: np.ndarra
     b = tot[:, 6:9] + reg * point
     x = _solve_symmetric(xx + reg[:, 0], xy, xz, yy + reg[:, 0], yz, zz + reg[:, 0], b)
     lo = grid.corner_positions(vertex_cell)
-    return np.clip(x, lo, lo + h)
+    reach = h * (np.bincount(v, back[edge], minlength=nverts) > 0)   # a back vertex may leave its cell
+    return np.clip(x, lo - reach[:, None], lo + h + reach[:, None])
 
 
 def _solve_symmetric(xx, xy, xz, yy, yz, zz, b: np.ndarray) -> np.ndarray:

@@ -86,15 +86,31 @@ class Grid:
         return (index + self.origin) * self.h
 
 
-def build_grid(leaves: Leaves, depth: int, band: float = 1.0, align: int = 1) -> Grid:
-    """Rasterise ``leaves`` onto the finest grid of ``depth`` over their bounding box (bounds
-    multiples of ``align`` cells); a cell is near its owner's plane when the plane passes within
-    ``band`` cell diagonals of its centre."""
-    n = 1 << depth
-    h = 1.0 / n
+def rasterise(leaves: Leaves, align: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(origin, owner): the finest cell of array cell 0 and the leaf owning every cell (-1: none)
+    over the leaves' bounding box, padded and aligned as :class:`Grid` says."""
     origin = (leaves.origin.min(0) - PAD) // align * align
     size = -(-((leaves.origin + leaves.cells[:, None]).max(0) + PAD - origin) // align) * align
     owner = np.full(tuple(size), -1, np.int32)
+    strides = np.array([size[1] * size[2], size[2], 1])
+    flat = owner.ravel()
+    for f in np.unique(leaves.cells):
+        sel = np.flatnonzero(leaves.cells == f)
+        sub = np.stack(np.meshgrid(*[np.arange(f)] * 3, indexing="ij"), -1).reshape(-1, 3)
+        flat[((leaves.origin[sel, None, :] - origin + sub[None]).reshape(-1, 3)) @ strides] = np.repeat(sel, len(sub))
+    return origin, owner
+
+
+def build_grid(leaves: Leaves, depth: int, band: float = 1.0, align: int = 1,
+               raster: tuple[np.ndarray, np.ndarray] | None = None) -> Grid:
+    """Rasterise ``leaves`` onto the finest grid of ``depth`` over their bounding box (bounds
+    multiples of ``align`` cells; ``raster``: :func:`rasterise`'s result when already made); a
+    cell is near its owner's plane when the plane passes within ``band`` cell diagonals of its
+    centre."""
+    n = 1 << depth
+    h = 1.0 / n
+    origin, owner = raster if raster is not None else rasterise(leaves, align)
+    size = np.array(owner.shape)
     shape = tuple(size + 1)
     total = np.zeros(int(np.prod(shape)), np.float32)             # flat over the corners
     votes = np.zeros(total.size, np.uint8)
@@ -103,14 +119,11 @@ def build_grid(leaves: Leaves, depth: int, band: float = 1.0, align: int = 1) ->
     reach = band * np.sqrt(3.0) * h
     strides = np.array([shape[1] * shape[2], shape[2], 1])
     corner_step = CORNER_OFFSETS @ strides                        # flat offset of each cell corner
-    flat_owner = owner.ravel()
-    cell_strides = np.array([size[1] * size[2], size[2], 1])
     for f in np.unique(leaves.cells):
         sel = np.flatnonzero(leaves.cells == f)
         sub = np.stack(np.meshgrid(*[np.arange(f)] * 3, indexing="ij"), -1).reshape(-1, 3)      # (f^3, 3)
         index = (leaves.origin[sel, None, :] - origin + sub[None]).reshape(-1, 3)                 # array cells
         ids = np.repeat(sel, len(sub))
-        flat_owner[index @ cell_strides] = ids
         normal = leaves.normal[ids]
         centre = np.einsum("ij,ij->i", (index + origin + 0.5) * h, normal) + leaves.const[ids]   # plane at the centre
         close = np.abs(centre) <= reach

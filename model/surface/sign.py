@@ -1,9 +1,11 @@
 """Inside or outside, for every corner of the finest grid.
 
-Near the surface the leaf planes decide: a corner within ``margin`` of its nearest plane (the
-plane of a leaf whose cells it belongs to) takes that plane's side.  ``margin`` is sqrt(3) cells,
-so the corners on the inside of any plane form a face-connected layer: a part thinner than a
-cell (a wing, a table top) keeps a closed inside of its own instead of vanishing.
+Near the surface the leaf planes decide: a corner within a margin of its nearest plane (the
+plane of a leaf whose cells it belongs to) takes that plane's side.  The margin is ``h |n|_1``
+(one cell for a plane along the grid, up to sqrt(3) cells for a diagonal one), the least for
+which the corners on the inside of a plane form a face-connected layer: a part thinner than a
+cell (a wing, a table top) keeps a closed inside of its own, about a cell thick, instead of
+vanishing.
 
 Away from the planes, space is outside when it is reachable from the border of the grid.  The
 flood passes only through corners at least ``seal`` cells from every plane band, so a gap in the
@@ -23,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from .grid import Grid
+from .grid import Grid, Leaves
 
 SIX = ndimage.generate_binary_structure(3, 1)
 
@@ -34,10 +36,12 @@ above which the flood is taken to have leaked into the interior (measured: at mo
 did not, on thin and thick shapes; 0.43 where it did) and is tried again with a wider seal."""
 
 
-def inside_corners(grid: Grid, margin: float = np.sqrt(3.0), seals: tuple[int, ...] = (1, 2, 3, 4)) -> np.ndarray:
-    """Boolean (n+3)^3 array over the grid's corners: True inside the shape.  ``margin`` in cells;
-    ``seals``: the seal widths tried in turn until the flood does not leak (the last one stays)."""
-    decisive = grid.near & (np.abs(grid.value) <= margin * grid.h)
+def inside_corners(grid: Grid, leaves: Leaves, seals: tuple[int, ...] = (1, 2, 3, 4)) -> np.ndarray:
+    """Boolean array over the grid's corners: True inside the shape.  ``seals``: the seal widths
+    tried in turn until the flood does not leak (the last one stays)."""
+    normal = leaves.normal[np.maximum(grid.leaf, 0)]
+    margin = np.abs(normal).sum(-1) * grid.h                    # h |n|_1: a face-connected layer
+    decisive = grid.near & (np.abs(grid.value) <= margin)
     plane_inside = decisive & (grid.value < 0)
     far = ~decisive
     for seal in seals:
