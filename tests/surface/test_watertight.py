@@ -164,3 +164,20 @@ def test_a_face_budget_is_met_and_the_mesh_stays_closed(budget, volume_change):
     assert mesh.volume == pytest.approx(full_mesh.volume, rel=volume_change)     # a tube at 800 faces thins
     with pytest.raises(ValueError, match="watertight surface only"):
         surface_mesh(o, "patches", faces=budget)
+
+
+def test_a_thin_plate_whose_planes_point_either_way_has_no_holes():
+    """One plane stands for both faces of a part thinner than a cell, so its orientation is a
+    guess; with every other leaf's plane flipped the plate still comes out whole (genus 0)."""
+    depth = 6
+    h = 1.0 / 0.96 / (1 << depth)
+    o = octree_of(trimesh.creation.box(extents=(1.0, 0.4 * h, 0.7)), depth)
+    flipped = 0
+    for lv in o.levels:
+        leaf = np.flatnonzero(lv.label == LEAF)[::2]
+        lv.plane[leaf] *= -1                                     # normal and offset: the same plane, other side
+        flipped += len(leaf)
+    assert flipped > 50
+    mesh = check_closed(watertight_mesh(o))
+    assert mesh.body_count == 1 and mesh.euler_number == 2
+    assert mesh.area == pytest.approx(2 * 0.7, rel=0.15)
