@@ -279,7 +279,8 @@ def test_complete_builds_the_training_input_octree_with_and_without_normals(clie
         m = surface_mesh(out)
         want = trimesh.Trimesh(m.vertices, m.faces, process=False)
         assert len(want.faces) > 0 and np.allclose(got.bounds, want.bounds, atol=1e-3 * np.ptp(pts, 0).max())
-        assert got.area == pytest.approx(want.area, rel=1e-3) and r.headers["x-mesh-closed"] == "true"
+        assert got.area == pytest.approx(want.area, rel=1e-3)
+        assert r.headers["x-surface"] == "patches" and r.headers["x-mesh-closed"] == "false"     # the default
 
 
 @pytest.mark.parametrize("accept, fmt", [
@@ -294,10 +295,10 @@ def test_accept_header_negotiation(accept, fmt):
 
 def test_surface_and_face_budget_parameters(client):
     data = trimesh.creation.icosphere(3).export(file_type="obj").encode()
-    r = client.post("/v1/octree?depth=6&format=ply", files={"shape": ("s.obj", data)})
+    r = client.post("/v1/octree?depth=6&format=ply&surface=watertight", files={"shape": ("s.obj", data)})
     assert r.status_code == 200 and r.headers["x-surface"] == "watertight" and r.headers["x-mesh-closed"] == "true"
     full = int(r.headers["x-mesh-faces"])
-    r = client.post("/v1/octree?depth=6&format=ply&faces=500", files={"shape": ("s.obj", data)})
+    r = client.post("/v1/octree?depth=6&format=ply&surface=watertight&faces=500", files={"shape": ("s.obj", data)})
     assert r.status_code == 200 and int(r.headers["x-mesh-faces"]) <= 500 < full
     mesh = trimesh.load(io.BytesIO(r.content), file_type="ply", process=False)
     assert len(mesh.faces) <= 500 and mesh.is_watertight and r.headers["x-mesh-closed"] == "true"
@@ -305,5 +306,7 @@ def test_surface_and_face_budget_parameters(client):
     assert bad.status_code == 422 and "'watertight' or 'patches'" in bad.json()["error"]["message"]
     bad = client.post("/v1/octree?depth=6&surface=patches&faces=500", files={"shape": ("s.obj", data)})
     assert bad.status_code == 422 and "surface=watertight" in bad.json()["error"]["message"]
-    bad = client.post("/v1/octree?depth=6&faces=2", files={"shape": ("s.obj", data)})
+    bad = client.post("/v1/octree?depth=6&faces=500", files={"shape": ("s.obj", data)})     # patches by default
+    assert bad.status_code == 422 and "surface=watertight" in bad.json()["error"]["message"]
+    bad = client.post("/v1/octree?depth=6&surface=watertight&faces=2", files={"shape": ("s.obj", data)})
     assert bad.status_code == 422 and "faces" in bad.json()["error"]["message"]

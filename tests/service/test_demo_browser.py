@@ -74,7 +74,7 @@ def test_demo_page_in_chromium(browser, server, tmp_path):
     assert int(viewer.get_attribute("data-triangles")) == detail["triangles"]
     assert int(page.inner_text("#s-nodes")) > 0
     assert ":" in page.inner_text("#s-leaves")
-    assert page.inner_text("#s-surface") == "watertight (closed)"           # the default: a closed mesh
+    assert page.inner_text("#s-surface") == "watertight (closed)"           # the page shows the closed mesh first
     assert page.inner_text("#s-mesh") == f"{detail['triangles']} / {detail['vertices']}"
     page.wait_for_timeout(300)
     assert drawn_fraction(page) > 0.01, "the mesh covers almost no pixel of the viewer"
