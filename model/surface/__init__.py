@@ -21,7 +21,7 @@ from ..octree import Octree
 from ..octree.patches import patch_mesh
 from .checks import is_closed
 from .dmc import contour
-from .grid import build_grid, leaves_of, rasterise
+from .grid import Grid, Leaves, build_grid, leaves_of, rasterise
 from .orient import orient
 from .sign import inside_corners
 from .simplify import simplify
@@ -70,19 +70,27 @@ def surface_mesh(octree: Octree, kind: str = DEFAULT_SURFACE, world: bool = True
     return SurfaceMesh(m.kind, verts, tris, depth, is_closed(tris))
 
 
+def signed_grid(octree: Octree) -> tuple[Grid, Leaves, np.ndarray]:
+    """The finest grid over a single-shape octree's leaves (which must exist), the leaves with
+    their planes oriented (:mod:`.orient`), and which grid corners are inside (:mod:`.sign`): what
+    the closed surface is contoured from."""
+    leaves = leaves_of(octree)
+    raster = rasterise(leaves)
+    leaves, _ = orient(leaves, raster[1], 1.0 / (1 << octree.depth))
+    grid = build_grid(leaves, octree.depth, raster=raster)
+    return grid, leaves, inside_corners(grid, leaves)
+
+
 def watertight_mesh(octree: Octree, world: bool = True, min_component_faces: int = MIN_COMPONENT_FACES) -> SurfaceMesh:
     """The closed surface of a single-shape octree, in the input's coordinates unless ``world`` is
     False (then in the unit cube).  Components of fewer than ``min_component_faces`` faces are
     dropped.  An octree without leaves gives an empty mesh."""
     if octree.batch_size != 1:
         raise ValueError("watertight_mesh needs a single-shape octree (split a batch first)")
-    leaves = leaves_of(octree)
-    if not len(leaves):
+    if not len(leaves_of(octree)):
         return SurfaceMesh("watertight", np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64), True)
-    raster = rasterise(leaves)
-    leaves, _ = orient(leaves, raster[1], 1.0 / (1 << octree.depth))
-    grid = build_grid(leaves, octree.depth, raster=raster)
-    verts, faces, leaf = contour(grid, leaves, inside_corners(grid, leaves))
+    grid, leaves, inside = signed_grid(octree)
+    verts, faces, leaf = contour(grid, leaves, inside)
     depth = octree.depth - np.log2(np.where(leaf >= 0, leaves.cells[np.maximum(leaf, 0)], 1)).astype(np.int64)
     keep, faces = drop_small_components(len(verts), faces, min_component_faces)
     verts, depth = np.clip(verts[keep], 0.0, 1.0), depth[keep]      # the octree's cube is its domain

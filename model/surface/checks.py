@@ -12,10 +12,9 @@ def is_closed(faces: np.ndarray) -> bool:
     n = int(faces.max()) + 1
     a = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2]]).astype(np.int64)
     b = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]]).astype(np.int64)
-    directed = np.sort(a * n + b)
-    if np.any(directed[1:] == directed[:-1]):
-        return False                                   # an edge traversed twice the same way
-    return bool(np.array_equal(directed, np.sort(b * n + a)))
+    # each undirected edge exactly twice, once each way: sorted keys pair up as (2u, 2u + 1)
+    key = np.sort((np.minimum(a, b) * n + np.maximum(a, b)) * 2 + (a < b))
+    return bool(key.size % 2 == 0 and np.all(key[0::2] % 2 == 0) and np.array_equal(key[1::2], key[0::2] + 1))
 
 
 def is_manifold(faces: np.ndarray) -> bool:

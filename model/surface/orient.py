@@ -19,7 +19,7 @@ import dataclasses
 
 import numpy as np
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import breadth_first_order, connected_components
+from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
 from .grid import Leaves
 
@@ -32,17 +32,16 @@ CLOSE = 0.35
 def adjacent_pairs(owner: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Leaf pairs (P, 2), lower first, whose cells touch across a face, and how many cell faces
     they share."""
-    pairs = []
+    span = np.int64(max(int(owner.max()) + 1, 1))
+    keys = []
     for axis in range(3):
         a = np.moveaxis(owner, axis, 0)
         x, y = a[:-1].ravel(), a[1:].ravel()
         keep = (x >= 0) & (y >= 0) & (x != y)
-        pairs.append(np.stack([np.minimum(x[keep], y[keep]), np.maximum(x[keep], y[keep])], 1))
-    pairs = np.concatenate(pairs)
-    if not len(pairs):
-        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
-    unique, count = np.unique(pairs, axis=0, return_counts=True)
-    return unique.astype(np.int64), count
+        x, y = x[keep].astype(np.int64), y[keep].astype(np.int64)
+        keys.append(np.minimum(x, y) * span + np.maximum(x, y))
+    unique, count = np.unique(np.concatenate(keys), return_counts=True)
+    return np.stack([unique // span, unique % span], 1), count
 
 
 def patch_centres(leaves: Leaves, h: float) -> np.ndarray:
@@ -69,28 +68,34 @@ def orient(leaves: Leaves, owner: np.ndarray, h: float) -> tuple[Leaves, int]:
         return leaves, 0
     a, b, agree, weight = a[link], b[link], dot[link] > 0, contact[link]
     count = len(leaves)
-    # a spanning tree of the links (largest contacts first), then parities from each root down it
-    graph = coo_matrix((1.0 / weight, (a, b)), shape=(count, count)).tocsr()
-    from scipy.sparse.csgraph import minimum_spanning_tree
-
-    tree = minimum_spanning_tree(graph)
+    # a spanning tree of the links (largest contacts first); each group rooted at its largest leaf
+    tree = minimum_spanning_tree(coo_matrix((1.0 / weight, (a, b)), shape=(count, count)).tocsr())
     tree = tree + tree.T
-    sign = coo_matrix((np.where(agree, 1, -1), (a, b)), shape=(count, count)).tocsr()
-    sign = sign + sign.T
     groups, label = connected_components(tree, directed=False)
-    parity = np.ones(count, np.int64)
-    area = (leaves.cells.astype(np.float64)) ** 2
-    flip = np.zeros(count, bool)
-    for g in range(groups):
-        members = np.flatnonzero(label == g)
-        if len(members) < 2:
-            continue
-        root = members[np.argmax(area[members])]
-        order, pred = breadth_first_order(tree, root, directed=False)
-        for node in order[1:]:
-            parity[node] = parity[pred[node]] * sign[pred[node], node]
-        keep = area[members][parity[members] > 0].sum() >= area[members][parity[members] < 0].sum()
-        flip[members] = (parity[members] < 0) if keep else (parity[members] > 0)
+    area = leaves.cells.astype(np.float64) ** 2
+    by_group = np.lexsort((-area, label))
+    roots = by_group[np.r_[True, label[by_group][1:] != label[by_group][:-1]]]
+    # one breadth-first search from a virtual node joined to every root
+    forest = coo_matrix((np.r_[tree.tocoo().data, np.ones(groups)],
+                         (np.r_[tree.tocoo().row, np.full(groups, count)], np.r_[tree.tocoo().col, roots])),
+                        shape=(count + 1, count + 1)).tocsr()
+    _, pred = breadth_first_order(forest, count, directed=False)
+    parent = np.where(pred[:count] >= 0, pred[:count], np.arange(count))
+    parent[roots] = roots
+    sign = coo_matrix((np.where(agree, 1.0, -1.0), (a, b)), shape=(count, count)).tocsr()
+    sign = sign + sign.T
+    nonroot = parent != np.arange(count)
+    step = np.ones(count)
+    step[nonroot] = np.asarray(sign[parent[nonroot], np.flatnonzero(nonroot)]).ravel()
+    # each leaf's parity relative to its root: the product of the steps on its way up, by pointer jumping
+    parity, up = step, parent
+    while np.any(up[up] != up):                   # invariant: parity = product of the steps from a leaf to up
+        parity, up = parity * parity[up], up[up]
+    pos = np.bincount(label, area * (parity > 0), groups)
+    neg = np.bincount(label, area * (parity < 0), groups)
+    size = np.bincount(label, minlength=groups)
+    keep = pos[label] >= neg[label]
+    flip = (size[label] >= 2) & np.where(keep, parity < 0, parity > 0)
     if not flip.any():
         return leaves, 0
     s = np.where(flip, -1.0, 1.0)
