@@ -1,13 +1,16 @@
 """Compare evaluation results: the Table 3 layout in Markdown, and paired per-shape differences.
 
     python -m model.results_table BASE.json OTHER.json [...] [--bootstrap 10000] [--icp | --missing]
+    python -m model.results_table RESULT.json [...] --surfaces
 
 Every file is written by ``python -m model.evaluate`` on the same split.  Besides the per-category
 table, each result after the first is compared with the first shape by shape: the difference of
 category means with a 95% bootstrap interval (shapes resampled within categories) and how many
 shapes each side wins and how many tie, so that a gap can be told from test-set noise.  ``--icp`` compares the Chamfer distances after
 ICP alignment (results evaluated with ``--icp``); ``--missing`` compares completion's
-missing-part distance.  Completion results get a last row: the partial input itself.  Shapes a model decoded to nothing have no
+missing-part distance.  ``--surfaces`` compares, within each result, the closed surface with the
+patches, both sampled by area (``model.evaluate`` measures both surfaces for the image and
+completion tasks).  Completion results get a last row: the partial input itself.  Shapes a model decoded to nothing have no
 value and are left out of its pairs; the table counts them.
 """
 
@@ -80,11 +83,14 @@ def markdown_table(results: list[dict], labels: list[str], metric: str = "chamfe
 
 
 def paired_difference(base: dict, other: dict, draws: int = 10_000, seed: int = 0,
-                      metric: str = "chamfer_x1e3") -> PairedDifference:
-    """Difference of category means over the shapes both results hold a value for, with a
+                      metric: str = "chamfer_x1e3", other_metric: str | None = None) -> PairedDifference:
+    """Difference of category means (``other_metric`` of ``other`` minus ``metric`` of ``base``;
+    by default the same metric) over the shapes both results hold a value for, with a
     stratified bootstrap."""
+    other_metric = other_metric or metric
     a = {(r["category"], r["shape_id"]): r.get(metric) for r in base["per_shape"] if _finite(r.get(metric))}
-    b = {(r["category"], r["shape_id"]): r.get(metric) for r in other["per_shape"] if _finite(r.get(metric))}
+    b = {(r["category"], r["shape_id"]): r.get(other_metric) for r in other["per_shape"]
+         if _finite(r.get(other_metric))}
     common = sorted(set(a) & set(b))
     if not common:
         raise ValueError("the two results share no shapes with a value")
@@ -104,15 +110,39 @@ def paired_difference(base: dict, other: dict, draws: int = 10_000, seed: int = 
                             int((all_d == 0).sum()), len(common))
 
 
+def surfaces_table(results: list[dict], labels: list[str], draws: int = 10_000) -> str:
+    """Markdown: per result, the closed surface against the patches (Chamfer x1e3 and F-score
+    category means, both sampled by area), the paired Chamfer difference and the open meshes."""
+    lines = ["Closed surface against the patches, both sampled by area (closed − patches, Chamfer x1e3 "
+             "category mean, 95% bootstrap):",
+             "| run | patches | closed | difference | 95% interval | patches better / closed better / tie "
+             "| F-score patches / closed | not closed | shapes |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for label, r in zip(labels, results):
+        if r.get("watertight_chamfer_x1e3_category_mean") is None:
+            raise ValueError(f"{label} has no closed-surface figures: give results of the image or completion task")
+        d = paired_difference(r, r, draws, metric="patches_area_chamfer_x1e3",
+                              other_metric="watertight_chamfer_x1e3")
+        lines.append(f"| {label} | {r['patches_area_chamfer_x1e3_category_mean']:.3f} | "
+                     f"{r['watertight_chamfer_x1e3_category_mean']:.3f} | {d.mean:+.3f} | "
+                     f"[{d.low:+.3f}, {d.high:+.3f}] | {d.base_wins} / {d.other_wins} / {d.ties} | "
+                     f"{r['patches_area_fscore_category_mean']:.3f} / {r['watertight_fscore_category_mean']:.3f} | "
+                     f"{r['watertight_not_closed']} | {d.shapes} |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = command_parser("python -m model.results_table", __doc__, [
         "python -m model.results_table aocnn.json ocnn-patch.json --bootstrap 10000",
-        "python -m model.results_table img.json img-psg.json --icp"])
+        "python -m model.results_table img.json img-psg.json --icp",
+        "python -m model.results_table image.json completion.json --surfaces"])
     ap.add_argument("results", nargs="+", help="results JSONs of python -m model.evaluate; the first is the base")
     ap.add_argument("--bootstrap", type=int, default=10_000, help="bootstrap draws for the intervals (default 10000)")
     ap.add_argument("--icp", action="store_true", help="compare the Chamfer distances after ICP alignment")
     ap.add_argument("--missing", action="store_true",
                     help="completion: compare the missing part's distance to the output instead of the Chamfer distance")
+    ap.add_argument("--surfaces", action="store_true",
+                    help="compare, within each result, the closed surface with the patches (both sampled by area)")
     args = ap.parse_args(argv)
     try:
         if args.bootstrap < 100:
@@ -120,8 +150,11 @@ def main(argv: list[str] | None = None) -> int:
         results = [load_results(p) for p in args.results]
         labels = [Path(p).stem + (f" (oracle {r['oracle']})" if r.get("oracle", "none") != "none" else "")
                   for r, p in zip(results, args.results)]
-        if args.icp and args.missing:
-            raise ValueError("give --icp or --missing, not both")
+        if args.icp + args.missing + args.surfaces > 1:
+            raise ValueError("give one of --icp, --missing and --surfaces")
+        if args.surfaces:
+            print(surfaces_table(results, labels, args.bootstrap))
+            return 0
         metric = "chamfer_icp_x1e3" if args.icp else "missing_x1e3" if args.missing else "chamfer_x1e3"
         print(markdown_table(results, labels, metric))
         if len(results) > 1:

@@ -71,3 +71,24 @@ def test_completion_tables_end_with_the_partial_input_and_compare_the_missing_pa
     assert main([str(pa), str(pb), "--missing", "--bootstrap", "200"]) == 0
     assert "| b | +0.500 | [+0.500, +0.500] | 2 / 0 / 0 | 2 |" in capsys.readouterr().out
     assert main([str(pa), str(pb), "--missing", "--icp"]) == 2
+
+
+def test_surfaces_compares_the_closed_mesh_with_the_patches_inside_each_result(tmp_path, capsys):
+    a = results({"car": [1.0, 3.0], "chair": [2.0, 2.0]})
+    closed = {"car_0": 1.5, "car_1": 3.0, "chair_0": 2.0, "chair_1": 1.0}
+    for r in a["per_shape"]:
+        r.update(patches_area_chamfer_x1e3=r["chamfer_x1e3"], watertight_chamfer_x1e3=closed[r["shape_id"]])
+    a.update(patches_area_chamfer_x1e3_category_mean=2.0, watertight_chamfer_x1e3_category_mean=1.875,
+             patches_area_fscore_category_mean=0.5, watertight_fscore_category_mean=0.4, watertight_not_closed=0)
+    pa = tmp_path / "a.json"
+    pa.write_text(json.dumps(a))
+    assert main([str(pa), "--surfaces", "--bootstrap", "200"]) == 0
+    row = capsys.readouterr().out.splitlines()[-1]
+    # car: +0.5 and 0; chair: 0 and -1 -> category means +0.25 and -0.5 -> -0.125
+    assert row.startswith("| a | 2.000 | 1.875 | -0.125 | [")
+    assert "| 1 / 1 / 2 | 0.500 / 0.400 | 0 | 4 |" in row
+    plain = results({"car": [1.0]})
+    pa.write_text(json.dumps(plain))
+    assert main([str(pa), "--surfaces"]) == 2
+    assert "no closed-surface figures" in capsys.readouterr().err
+    assert main([str(pa), "--surfaces", "--icp"]) == 2
