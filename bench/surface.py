@@ -16,9 +16,11 @@ built from virtual scans as the dataset does, and the shipped image model's outp
 ``--figure`` draws, for five decoded shapes and five test meshes at the first depth, the patches
 and the closed surface from the front and from behind.  ``--accuracy`` measures instead, for
 every test mesh and depth, both surfaces against 200,000 samples of the mesh: the Chamfer
-distance (x10^3, cube units) and the F-score at 1% of the diagonal, each surface drawn
-uniformly by area (100,000 points), and the share of the mesh's area lying in parts thinner
-than a cell (both faces within a cell of each other).
+distance (x10^3, cube units), the F-score at 1% of the diagonal and the normal consistency
+(the mean |cos| between a point's normal and its nearest neighbour's in the other set, both
+ways), each surface drawn uniformly by area (100,000 points), and the share of the mesh's area lying in parts thinner
+than a cell (both faces within a cell of each other); and the same for the other approach
+compared, marching cubes on the signed field (:func:`marching_cubes_surface`).
 """
 
 from __future__ import annotations
@@ -51,12 +53,10 @@ def dense_reference(octree) -> float:
     inside/outside field (padded so that the surface closes)."""
     from skimage.measure import marching_cubes
 
-    from model.surface.grid import PAD, build_grid, leaves_of
-    from model.surface.sign import inside_corners
+    from model.surface import signed_grid
+    from model.surface.grid import PAD
 
-    leaves = leaves_of(octree)
-    grid = build_grid(leaves, octree.depth)
-    inside = inside_corners(grid, leaves)
+    grid, _, inside = signed_grid(octree)
     n = 1 << octree.depth
     field = np.zeros((n + 2 * PAD + 1,) * 3, np.float32)          # the whole cube, padded as the grid is
     lo = grid.origin + PAD
@@ -65,6 +65,21 @@ def dense_reference(octree) -> float:
     t = time.perf_counter()
     marching_cubes(field, 0.5, method="lewiner")
     return time.perf_counter() - t
+
+
+def marching_cubes_surface(octree) -> tuple[np.ndarray, np.ndarray]:
+    """The other approach the closed surface was compared with: the same inside/outside corners
+    made a signed distance (the planes' mean value near them, clamped to a cell; a cell elsewhere)
+    and meshed by skimage's marching cubes.  (vertices in cube coordinates, faces)."""
+    from skimage.measure import marching_cubes
+
+    from model.surface import signed_grid
+
+    grid, _, inside = signed_grid(octree)
+    h = grid.h
+    size = np.where(grid.near, np.clip(np.abs(grid.value), 1e-3 * h, h), h)
+    verts, faces, _, _ = marching_cubes(np.where(inside, -size, size), 0.0, method="lewiner")
+    return (verts + grid.origin) * h, faces
 
 
 def scanned_octrees(depths: list[int], mesh_dir: str) -> list[tuple[str, object]]:
@@ -157,9 +172,11 @@ def accuracy(depths: list[int], mesh_dir: str) -> int:
     from model.evaluate import fscore
     from model.octree.metrics import chamfer_distance
     from model.surface import surface_mesh
+    from model.surface.checks import is_closed
 
-    print("| mesh | depth | thin share | patches CD | closed CD | ratio | patches F | closed F | closed |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| mesh | depth | thin share | patches CD | closed CD | ratio | MC CD | MC ratio "
+          "| F: patches / closed / MC | normals: patches / closed / MC | closed: ours / MC |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name, tree in scanned_octrees(depths, mesh_dir):
         mesh_name, depth = name.rsplit(" d", 1)
         path = mesh_path_of(mesh_name, mesh_dir)
@@ -174,14 +191,23 @@ def accuracy(depths: list[int], mesh_dir: str) -> int:
         depth_to[hits[1]] = np.linalg.norm(hits[0] - truth_pts[hits[1]], axis=1)
         thin = float(np.mean(depth_to / tree.normalizations[0].scale < h))
         threshold = 0.01 * float(np.linalg.norm(truth.max(0) - truth.min(0)))
-        row = []
-        for kind in ("patches", "watertight"):
-            m = surface_mesh(tree, kind, world=False)
-            pts = trimesh.sample.sample_surface(trimesh.Trimesh(m.vertices, m.faces, process=False), 100_000, seed=1)[0]
-            row.append((chamfer_distance(truth, pts) * 1e3, fscore(truth, pts, threshold), m.closed))
-        (cp, fp, _), (cw, fw, closed) = row
-        print(f"| {mesh_name} | {depth} | {thin:.0%} | {cp:.4f} | {cw:.4f} | {cw / cp:.2f} | {fp:.3f} | {fw:.3f} | "
-              f"{'yes' if closed else 'NO'} |", flush=True)
+        truth_tree = cKDTree(truth)
+        meshes = [surface_mesh(tree, kind, world=False) for kind in ("patches", "watertight")]
+        mc_verts, mc_faces = marching_cubes_surface(tree)
+        cd, f, nc = [], [], []
+        for verts, faces in [(m.vertices, m.faces) for m in meshes] + [(mc_verts, mc_faces)]:
+            surface = trimesh.Trimesh(verts, faces, process=False)
+            pts, pid = trimesh.sample.sample_surface(surface, 100_000, seed=1)
+            cd.append(chamfer_distance(truth, pts) * 1e3)
+            f.append(fscore(truth, pts, threshold))
+            # normal consistency: |cos| between each point's normal and its nearest neighbour's, both ways
+            to_truth = np.abs(np.einsum("ij,ij->i", surface.face_normals[pid], normals[truth_tree.query(pts)[1]]))
+            to_pred = np.abs(np.einsum("ij,ij->i", normals, surface.face_normals[pid][cKDTree(pts).query(truth)[1]]))
+            nc.append((to_truth.mean() + to_pred.mean()) / 2)
+        yes = {True: "yes", False: "NO"}
+        print(f"| {mesh_name} | {depth} | {thin:.0%} | {cd[0]:.4f} | {cd[1]:.4f} | {cd[1] / cd[0]:.2f} | {cd[2]:.4f} "
+              f"| {cd[2] / cd[0]:.2f} | {f[0]:.3f} / {f[1]:.3f} / {f[2]:.3f} | {nc[0]:.3f} / {nc[1]:.3f} / {nc[2]:.3f} "
+              f"| {yes[meshes[1].closed]} / {yes[is_closed(mc_faces)]} |", flush=True)
     return 0
 
 
