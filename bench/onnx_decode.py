@@ -134,7 +134,7 @@ def bench_model(kind: str, source: str, bundle_dir: str | None, batches, threads
     if int8:
         quantize(bundle_dir, f"{tmp.name}/int8")
         bundles["onnxruntime int8"] = load_bundle(f"{tmp.name}/int8")
-    spec = ImageSpec(size=src.config.image_size) if kind == "image" else src.config.depth
+    spec = src.config.image_spec() if kind == "image" else src.config.depth
     rows = []
     for n in threads:
         # spinning off: idle onnxruntime threads would otherwise busy-wait and steal the CPU from

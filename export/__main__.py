@@ -1,6 +1,6 @@
 """Export a trained model to an ONNX bundle, or verify a bundle.
 
-    python -m export CHECKPOINT_OR_RUN --out BUNDLE_DIR [--name NAME] [--force]
+    python -m export CHECKPOINT_OR_RUN --out BUNDLE_DIR [--name NAME] [--force] [--foreground FG]
     python -m export --verify BUNDLE_DIR
 
 Exit status 0 on success, 2 with one line on stderr when the input or bundle is unusable.
@@ -33,6 +33,11 @@ def verify(path: str) -> dict:
         octree = runtime.decode(np.zeros((1, bundle.octree.latent), np.float32))
         summary["decoded_leaves"] = sum(octree.leaves_per_depth())
         summary["decode_ms"] = round(1e3 * (time.perf_counter() - t), 1)
+    if bundle.mask_spec() is not None:
+        mask = runtime.segment(np.full((96, 128, 3), 128, np.uint8))
+        if mask.shape != (96, 128) or not np.isfinite(mask).all():
+            raise BundleError(f"{path}: the foreground network gives a {mask.shape} mask for a 96x128 image")
+        summary["foreground"] = True
     if "classifier_head" in bundle.graphs:
         p = runtime.classify(np.zeros((1, bundle.octree.latent), np.float32))[0]
         if p.shape != (len(bundle.categories),) or abs(float(p.sum()) - 1) > 1e-4:
@@ -50,6 +55,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", help="the bundle folder to write (required with SOURCE)")
     ap.add_argument("--name", default=None, help="the bundle's name (default: its task)")
     ap.add_argument("--force", action="store_true", help="replace an existing bundle folder (default: refuse)")
+    ap.add_argument("--foreground", default=None, metavar="FG",
+                    help="image models: a foreground network's checkpoint or run folder, put in the bundle to "
+                         "remove photos' backgrounds (python -m model.train foreground)")
     ap.add_argument("--verify", metavar="BUNDLE_DIR", default=None, help="verify a bundle instead of exporting")
     args = ap.parse_args(argv)
     from .bundle import BundleError
@@ -65,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
         if not args.source or not args.out:
             ap.error("SOURCE and --out are required (or --verify BUNDLE_DIR)")
         from .exporter import export
-        meta = export(args.source, args.out, name=args.name, force=args.force)
+        meta = export(args.source, args.out, name=args.name, force=args.force, foreground=args.foreground)
         check = meta["export"]["self_check"]
         agree = (f"probabilities within {check['probability_max_abs_diff']:.1e}" if "probability_max_abs_diff" in check
                  else f"labels {check['label_agreement']:.2%} equal, planes within {check['plane_max_abs_diff']:.1e}")

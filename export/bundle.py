@@ -18,7 +18,7 @@ from pathlib import Path
 
 from model.files import sha256_file
 from model.octree.build import MAX_BUILD_DEPTH
-from model.preprocess import ImageSpec
+from model.preprocess import ImageSpec, MaskSpec
 
 BUNDLE_FORMAT = 1
 """Version of the bundle layout written by this code; newer bundles are refused."""
@@ -86,6 +86,13 @@ class Bundle:
         if self.input.get("kind") != "image":
             raise BundleError(f"{self.path}: a {self.task} bundle takes no image")
         return ImageSpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in self.input["image"].items()})
+
+    def mask_spec(self) -> MaskSpec | None:
+        """How the bundle's foreground network takes images; None when it has none."""
+        fg = self.input.get("foreground")
+        if "foreground" not in self.graphs or not isinstance(fg, dict):
+            return None
+        return MaskSpec.from_dict(fg)
 
     def checksums(self) -> dict[str, str]:
         return {g.file: g.sha256 for g in self.graphs.values()}

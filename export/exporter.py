@@ -25,7 +25,7 @@ from model.files import UMASK, json_text, sha256_file, write_atomic
 from model.networks import ARCHS, CLASSIFIER_ARCHS, OctreeDecoder, TorchSteps
 from model.octree import DEFAULT_THRESHOLD
 from model.octree.pointcloud import SCAN_FRAME_MARGIN
-from model.preprocess import ImageSpec
+from model.preprocess import MaskSpec
 from model.checkpoint import Loaded, load_model
 
 from . import graphs as G
@@ -78,10 +78,23 @@ def _octree_spec(src: Loaded) -> dict:
             "planes": [d for d in range(dec.full_depth, dec.depth + 1) if dec.has_plane(d)], **spec}
 
 
-def _io_spec(src: Loaded, task: str) -> tuple[dict, dict]:
+def load_foreground(path: str | Path) -> Loaded:
+    """A trained foreground network (run or checkpoint folder) to put in an image bundle."""
+    try:
+        fg = load_model(path)
+    except ValueError as exc:
+        raise BundleError(str(exc)) from None
+    if fg.config.task != "foreground":
+        raise BundleError(f"{path}: a {fg.config.task} run, not a foreground network")
+    return fg
+
+
+def _io_spec(src: Loaded, task: str, foreground: Loaded | None = None) -> tuple[dict, dict]:
     if task == "image-to-shape":
-        spec = ImageSpec(size=src.config.image_size)
+        spec = src.config.image_spec()
         inp = {"kind": "image", "image": dataclasses.asdict(spec)}
+        if foreground is not None:
+            inp["foreground"] = MaskSpec(size=foreground.config.image_size).to_dict()
     else:
         inp = {"kind": "points", "points": {**POINT_LIMITS, "normals": "estimated when absent"}}
         if task == "completion":
@@ -106,7 +119,21 @@ def export_graphs(src: Loaded) -> list[G.Graph]:
     return out
 
 
-def self_check(bundle_dir: Path, src: Loaded, batch: int = 3, seed: int = 0) -> dict:
+def foreground_check(runtime: Runtime, foreground: Loaded, seed: int = 0) -> dict:
+    """onnxruntime's and torch's masks of random images: raise if they disagree."""
+    size = foreground.config.image_size
+    x = np.random.default_rng(seed).normal(0, 1, (2, 3, size, size)).astype(np.float32)
+    ours = runtime.run("foreground", {"image": x})[0]
+    with torch.no_grad():
+        theirs = foreground.model.net(torch.from_numpy(x)).numpy()
+    diff = float(np.abs(ours - theirs).max())
+    agree = float(np.mean((ours > 0) == (theirs > 0)))
+    if diff > 1e-3 or agree < 0.999:
+        raise BundleError(f"onnxruntime and torch foreground logits differ by {diff:.2e} ({agree:.4%} of pixels agree)")
+    return {"foreground_logit_max_abs_diff": diff, "foreground_pixel_agreement": agree}
+
+
+def self_check(bundle_dir: Path, src: Loaded, batch: int = 3, seed: int = 0, foreground: Loaded | None = None) -> dict:
     """Decode (classify: score) random latent codes with onnxruntime and torch; raise if they
     disagree.  Returns the figures: max |difference| of planes on the common leaves and label
     agreement (classify: of the probabilities)."""
@@ -131,27 +158,40 @@ def self_check(bundle_dir: Path, src: Loaded, batch: int = 3, seed: int = 0) -> 
     if agreement < 0.999 or plane > 1e-4:
         raise BundleError(f"{bundle_dir}: onnxruntime and torch disagree (labels {agreement:.4%} equal, "
                           f"planes differ by up to {plane:.2e})")
-    return {"latents": batch, "label_agreement": agreement, "plane_max_abs_diff": plane, "nodes": total}
+    out = {"latents": batch, "label_agreement": agreement, "plane_max_abs_diff": plane, "nodes": total}
+    if foreground is not None:
+        out.update(foreground_check(runtime, foreground, seed))
+    return out
 
 
-def export(source: str | Path, out: str | Path, name: str | None = None, force: bool = False) -> dict:
-    """Write the bundle of ``source`` to ``out`` (atomically); returns its model.json."""
+def export(source: str | Path, out: str | Path, name: str | None = None, force: bool = False,
+           foreground: str | Path | None = None) -> dict:
+    """Write the bundle of ``source`` to ``out`` (atomically); returns its model.json.  An image
+    model's bundle also takes the ``foreground`` network (background removal for photos)."""
     out = Path(out)
     if out.exists() and not force:
         raise BundleError(f"{out}: already exists; pass --force to replace it")
     src = load_source(source)
     task = BUNDLE_TASKS[src.config.task]
+    fg = None
+    if foreground is not None:
+        if task != "image-to-shape":
+            raise BundleError(f"--foreground goes with an image model, not a {task} model")
+        fg = load_foreground(foreground)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix="tmp-", dir=out.parent))
     try:
         specs = {}
-        for g in export_graphs(src):
+        graphs = export_graphs(src)
+        if fg is not None:
+            graphs.append(G.foreground_graph(fg.model.net, fg.config.image_size))
+        for g in graphs:
             model = onnx.load_from_string(g.model)
             onnx.checker.check_model(model, full_check=True)
             path = tmp / f"{g.name}.onnx"
             write_atomic(path, g.model)
             specs[g.name] = GraphSpec(g.name, path.name, sha256_file(path), g.inputs, g.outputs).to_json()
-        inp, outp = _io_spec(src, task)
+        inp, outp = _io_spec(src, task, fg)
         weights = src.meta.get("weights_sha256") or (specs.get("decoder_start") or specs["octree_encoder"])["sha256"]
         meta = {
             "format": BUNDLE_FORMAT, "task": task, "name": name or task,
@@ -161,11 +201,12 @@ def export(source: str | Path, out: str | Path, name: str | None = None, force: 
             "graphs": specs,
             "export": {"exporter": G.EXPORTER, "opset": G.OPSET, "torch": torch.__version__.split("+")[0],
                        "onnx": onnx.__version__, "batchnorm": "folded", "quantized": False},
-            "provenance": {k: v for k, v in src.meta.items() if k != "evaluation"},
+            "provenance": {**{k: v for k, v in src.meta.items() if k != "evaluation"},
+                           **({"foreground": fg.meta} if fg is not None else {})},
             "evaluation": src.meta.get("evaluation"),
         }
         write_atomic(tmp / MANIFEST, json_text(meta).encode())
-        meta["export"]["self_check"] = self_check(tmp, src)
+        meta["export"]["self_check"] = self_check(tmp, src, foreground=fg)
         write_atomic(tmp / MANIFEST, json_text(meta).encode())
         tmp.chmod(0o777 & ~UMASK)
         if out.exists():

@@ -209,6 +209,13 @@ def image_encoder_graph(encoder: nn.Module, size: int, latent: int) -> Graph:
                   {"latent": ("float32", ("batch", latent))})
 
 
+def foreground_graph(net: nn.Module, size: int) -> Graph:
+    """The foreground network (BN folded): (B, 3, size, size) normalised images -> object logits."""
+    x = torch.rand(2, 3, size, size, generator=torch.Generator().manual_seed(0))
+    return _graph("foreground", fold_batchnorm(net), (x,), {"image": ("float32", ("batch", 3, size, size))},
+                  {"logits": ("float32", ("batch", 1, size, size))})
+
+
 class _Probabilities(nn.Module):
     """A classifier head followed by the softmax (the service reports probabilities)."""
 

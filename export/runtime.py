@@ -17,6 +17,7 @@ import onnxruntime as ort
 
 from model.decode import decode
 from model.octree import Octree
+from model.preprocess import mask_input, mask_output
 
 from .bundle import Bundle, BundleError, GraphSpec
 
@@ -105,6 +106,19 @@ class Runtime:
     def encode_image(self, images: np.ndarray) -> np.ndarray:
         """Latent codes (B, L) of preprocessed images (B, 3, S, S) (:func:`model.preprocess.prepare_image`)."""
         return self.run("image_encoder", {"image": np.ascontiguousarray(images, dtype=np.float32)})[0]
+
+    def segment(self, rgb: np.ndarray) -> np.ndarray:
+        """(H, W) object probability of an (H, W, 3) uint8 image by the bundle's foreground network
+        (:func:`model.preprocess.mask_input` / :func:`mask_output`); ValueError without one."""
+        spec = self.bundle.mask_spec()
+        if spec is None:
+            raise ValueError(f"{self.bundle.path}: the bundle has no foreground network")
+        logits = self.run("foreground", {"image": mask_input(rgb, spec)[None]})[0]
+        return mask_output(logits[0, 0], rgb.shape[0], rgb.shape[1])
+
+    @property
+    def has_foreground(self) -> bool:
+        return self.bundle.mask_spec() is not None
 
     def encode_octree(self, octree: Octree) -> np.ndarray:
         """Latent codes (B, L) of a (batched) octree built with the bundle's octree settings."""

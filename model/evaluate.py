@@ -2,6 +2,7 @@
 
     python -m model.evaluate RUN --data DIR [--split test] --out results.json [--mesh-dir DIR]
                              [--resolution 128] [--limit N] [--oracle structure|all] [--icp] [--bundle BUNDLE_DIR]
+                             [--photos [--remove-background auto|true|false]]
 
 Each shape is encoded (its octree for an autoencoder, a fixed view of its renders for an image
 model), decoded (octrees grow through the shared decode loop), its leaf patches sampled at one
@@ -48,7 +49,7 @@ from .octree.metrics import chamfer_distance, mean_squared_distance, missing_par
 from .octree.batch import split_octree
 from .surface import DEFAULT_SURFACE, SURFACES, surface_mesh
 from .train.config import TrainConfig
-from .train.images import image_batch
+from .train.images import image_batch, photo_batch
 from .train.completion import truth_view
 from .train.tasks import TASKS
 from .cli import command_parser
@@ -180,11 +181,14 @@ def _mean_or_none(values: list[float]) -> float | None:
 def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, limit: int | None = None,
              mesh_dir: str | None = None, batch_size: int = 8, seed: int = 0, oracle: str = "none",
              align: bool = False, bundle: str | None = None, normals: str = "given",
-             surface: str = DEFAULT_SURFACE) -> dict:
+             surface: str = DEFAULT_SURFACE, photos: bool = False, remove_background: str = "auto") -> dict:
     """The results dictionary written by the CLI (see the module docstring).  ``bundle``: encode
     and decode with this exported bundle in onnxruntime instead of the torch model.  ``normals``:
     completion inputs built with the scanner's normals or with estimated ones.  ``surface``: the
-    surface written to ``mesh_dir`` (both are measured)."""
+    surface written to ``mesh_dir`` (both are measured).  ``photos``: image models see each shape's
+    photo-like test view (a render on a held-out background, no alpha) through the service's
+    background removal (the bundle's foreground network; ``remove_background`` as the service's
+    parameter), and the mask's IoU with the exact one is reported."""
     if oracle not in ORACLES:
         raise ValueError(f"--oracle must be one of {', '.join(ORACLES)}")
     loaded = load_model(run)
@@ -198,11 +202,17 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
             runtime = Runtime(load_bundle(bundle))
         except BundleError as exc:
             raise ValueError(f"--bundle: {exc}") from None
-        want = {"image": "image-to-shape"}.get(cfg.task, cfg.task)
+        want = {"image": "image-to-shape", "foreground": "image-to-shape"}.get(cfg.task, cfg.task)
+        if cfg.task == "foreground" and not runtime.has_foreground:
+            raise ValueError(f"--bundle {bundle} has no foreground network")
         if runtime.bundle.task != want:
             raise ValueError(f"--bundle {bundle} serves {runtime.bundle.task}, but {run} is a {cfg.task} model")
+    if photos and cfg.task != "image":
+        raise ValueError("--photos goes with an image model")
     if cfg.task == "classify":
         return evaluate_classifier(model, cfg, run, split, limit, runtime=runtime, bundle=bundle)
+    if cfg.task == "foreground":
+        return evaluate_foreground(model, cfg, run, split, limit, runtime=runtime, bundle=bundle)
     octree_decoder = isinstance(model.decoder, OctreeDecoder)
     if oracle != "none" and not octree_decoder:
         raise ValueError("--oracle needs an octree decoder")
@@ -222,6 +232,9 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
                     "watertight_fscore")
     if completion:
         metrics += ("input_chamfer_x1e3", "missing_x1e3", "input_missing_x1e3")
+    if photos:
+        metrics += ("mask_iou",)
+    segment = runtime.segment if runtime is not None and runtime.has_foreground else None
     per_cat: dict[str, dict[str, list[float]]] = {m: {} for m in metrics}
     per_shape: list[dict] = []
     confusion: dict[int, np.ndarray] = {}
@@ -231,7 +244,14 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     for s in range(0, len(records), batch_size):
         idx = np.arange(s, min(len(records), s + batch_size))
         octree, _ = records.batch(idx)
-        if runtime is None:
+        framing = [{}] * len(idx)
+        if photos:
+            images, framing = photo_batch([records.samples[i] for i in idx], task.spec(cfg), segment,
+                                          remove_background)
+            with torch.no_grad():
+                latent = (torch.from_numpy(runtime.encode_image(images)) if runtime is not None
+                          else model.encoder(torch.from_numpy(images)))
+        elif runtime is None:
             with torch.no_grad():
                 latent = task.encode(model, cfg, records, idx)
         elif cfg.task == "image":
@@ -242,12 +262,12 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         if octree_decoder:
             for d, m in status_confusion(model, latent, OctreeTensors.from_octree(octree)).items():
                 confusion[d] = confusion.get(d, 0) + m
-        for i, (pts, tree) in zip(idx, decoded_points(model, latent, octree, resolution, seed, oracle,
-                                                         runtime and runtime.steps())):
+        for i, frame, (pts, tree) in zip(idx, framing, decoded_points(model, latent, octree, resolution, seed,
+                                                                      oracle, runtime and runtime.steps())):
             sample = records.samples[i]
             pts = truth_view(sample, pts)
             row = {"category": sample.category, "shape_id": sample.shape_id,
-                   "truth_nodes": int(sum(sample.octree.nodes_per_depth())), "output_points": int(len(pts))}
+                   "truth_nodes": int(sum(sample.octree.nodes_per_depth())), "output_points": int(len(pts)), **frame}
             if len(pts):
                 row["chamfer_x1e3"] = chamfer_distance(sample.points, pts) * 1e3
                 if align:
@@ -257,7 +277,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
                     row.update(surface_rows(sample, tree, pts, seed))
             else:
                 empty += 1
-                row.update({m: None for m in metrics})
+                row.update({m: None for m in metrics if m != "mask_iou"})
             if sample.partial is not None:        # the do-nothing floor: the input itself
                 row["input_chamfer_x1e3"] = chamfer_distance(sample.points, sample.partial) * 1e3
                 row.update(_missing(sample, pts, cfg.depth))
@@ -279,6 +299,11 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         "run": str(run), "task": cfg.task, "arch": cfg.arch, "depth": cfg.depth, "split": split,
         "resolution": resolution, "bundle": bundle, "shapes": len(per_shape), "empty_outputs": empty, "oracle": oracle,
     }
+    if photos:
+        results["input"] = {"kind": "photos", "remove_background": remove_background,
+                            "foreground_network": segment is not None,
+                            "mask_sources": {k: sum(1 for r in per_shape if r["mask_source"] == k)
+                                             for k in sorted({r["mask_source"] for r in per_shape})}}
     if surfaces:
         results["watertight_not_closed"] = sum(1 for r in per_shape if r.get("watertight_closed") is False)
     for m in metrics:
@@ -337,6 +362,47 @@ def evaluate_classifier(model, cfg: TrainConfig, run: str, split: str = "test", 
             "seconds": time.perf_counter() - t}
 
 
+def evaluate_foreground(model, cfg: TrainConfig, run: str, split: str = "test", limit: int | None = None,
+                        runtime=None, bundle: str | None = None) -> dict:
+    """Mask IoU of the foreground network on each shape's photo-like test view (a render on a
+    held-out background, no alpha: :func:`model.data.photos.photo_split_view`), at the photo's own
+    resolution, through the service's path (:func:`model.preprocess.object_mask`: clean-up, a second
+    pass on small objects; a photo where it finds nothing scores 0); per category and overall, with the share of photos above 0.9."""
+    from .data.photos import photo_split_view
+    from .preprocess import MaskSpec, NoObjectError, mask_input, mask_output, object_mask
+
+    spec = runtime.bundle.mask_spec() if runtime is not None else MaskSpec(size=cfg.image_size)
+
+    def segment(rgb: np.ndarray) -> np.ndarray:
+        if runtime is not None:
+            return runtime.segment(rgb)
+        with torch.no_grad():
+            logits = model.net(torch.from_numpy(mask_input(rgb, spec)[None])).numpy()
+        return mask_output(logits[0, 0], rgb.shape[0], rgb.shape[1])
+
+    records = TASKS[cfg.task].dataset(cfg, split, 0, limit=limit)
+    rows, t = [], time.perf_counter()
+    for s in records.samples:
+        photo = photo_split_view(s.images, s.shape_id)
+        h, w = photo.rgb.shape[:2]
+        try:
+            ours = object_mask(photo.rgb, segment, spec) > 0.5
+        except NoObjectError:
+            ours = np.zeros((h, w), bool)
+        truth = photo.mask > 0.5
+        iou = float((ours & truth).sum() / max(1, (ours | truth).sum()))
+        rows.append({"category": s.category, "shape_id": s.shape_id, "mask_iou": iou,
+                     "object_share": float(truth.mean()), "photo_size": [h, w]})
+    ious = np.array([r["mask_iou"] for r in rows])
+    per_cat = {c: float(np.mean([r["mask_iou"] for r in rows if r["category"] == c]))
+               for c in sorted({r["category"] for r in rows})}
+    return {"run": str(run), "task": cfg.task, "arch": cfg.arch, "split": split, "bundle": bundle,
+            "shapes": len(rows), "input": {"kind": "photos"}, "mask_iou": per_cat,
+            "mask_iou_category_mean": float(np.mean(list(per_cat.values()))), "mask_iou_mean": float(ious.mean()),
+            "mask_iou_median": float(np.median(ious)), "mask_iou_above_0.9": float((ious > 0.9).mean()),
+            "per_shape": rows, "seconds": time.perf_counter() - t}
+
+
 def status_summary(confusion: np.ndarray) -> dict:
     """Accuracy, per-class recall and precision, and the confusion matrix (rows: truth)."""
     c = confusion.astype(np.float64)
@@ -372,6 +438,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="also report the Chamfer distance after rigid ICP alignment to the truth (paper Table 4)")
     ap.add_argument("--bundle", default=None,
                     help="run the model's exported ONNX bundle in onnxruntime instead of torch (default: torch)")
+    ap.add_argument("--photos", action="store_true",
+                    help="image models: evaluate on each shape's photo-like view (a render on a held-out "
+                         "background, no alpha) through the bundle's background removal, and report the mask IoU")
+    ap.add_argument("--remove-background", choices=("auto", "true", "false"), default="auto",
+                    help="with --photos: the service's parameter (default auto: the bundle's foreground network)")
     ap.add_argument("--normals", choices=("given", "estimated"), default="given",
                     help="completion: build the partial scans' octrees with the scanner's normals (default) "
                          "or with normals estimated from the points")
@@ -384,7 +455,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError("--resolution must be at least 2 and --limit at least 1")
         results = evaluate(args.run, args.data, args.split, args.resolution, args.limit, args.mesh_dir,
                            oracle=args.oracle, align=args.icp, bundle=args.bundle, normals=args.normals,
-                           surface=args.surface)
+                           surface=args.surface, photos=args.photos, remove_background=args.remove_background)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -392,6 +463,10 @@ def main(argv: list[str] | None = None) -> int:
     if "voted_accuracy" in results:
         print(f"{args.out}: {results['shapes']} shapes, accuracy {results['accuracy']:.4f}, "
               f"voted over 12 rotations {results['voted_accuracy']:.4f}")
+        return 0
+    if results["task"] == "foreground":
+        print(f"{args.out}: {results['shapes']} photos, mask IoU category mean {results['mask_iou_category_mean']:.4f} "
+              f"(median {results['mask_iou_median']:.4f}; above 0.9: {results['mask_iou_above_0.9']:.1%})")
         return 0
     mean = results["chamfer_x1e3_category_mean"]
     text = f"{args.out}: {results['shapes']} shapes, Chamfer x1e3 category mean "
@@ -404,6 +479,8 @@ def main(argv: list[str] | None = None) -> int:
         text += (f"; drawn by area: patches {results['patches_area_chamfer_x1e3_category_mean']:.3f}, closed surface "
                  f"{results['watertight_chamfer_x1e3_category_mean']:.3f} (F-score {results['patches_area_fscore_category_mean']:.3f}"
                  f" and {results['watertight_fscore_category_mean']:.3f}; {results['watertight_not_closed']} not closed)")
+    if results.get("mask_iou_category_mean") is not None:
+        text += f"; mask IoU {results['mask_iou_category_mean']:.3f}"
     print(text)
     if results["empty_outputs"]:
         print(f"warning: {results['empty_outputs']} of {results['shapes']} shapes decoded to nothing (no patch: "

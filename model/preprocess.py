@@ -30,7 +30,8 @@ class ImageSpec:
     """How an encoder expects its image: ``size`` x ``size`` RGB, channel-wise normalised.
 
     ``background``: the RGB colour transparent pixels are composited onto. ``margin``: the share of
-    the square's side left empty around the object's crop box (on each side). ``border_tolerance``:
+    the square's side left empty around the object's crop box (on each side; the object's longest
+    side fills ``foreground_ratio = 1 - 2 margin`` of the square). ``border_tolerance``:
     how far (0-255, max over channels) a pixel may differ from the border colour and still count as
     background when an opaque image is cropped.
     """
@@ -41,6 +42,10 @@ class ImageSpec:
     background: tuple[int, int, int] = (255, 255, 255)
     margin: float = 0.05
     border_tolerance: int = 24
+
+    @property
+    def foreground_ratio(self) -> float:
+        return 1.0 - 2.0 * self.margin
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -114,19 +119,26 @@ def object_box(rgba: np.ndarray, tolerance: int = 24) -> tuple[int, int, int, in
         mask = np.zeros(rgb.shape[:2], bool)
         for c in range(3):                                       # per channel: max over a 3-axis is slow
             mask |= np.abs(rgb[..., c] - ref[c]) > tolerance
+    return mask_bounds(mask)
+
+
+def mask_bounds(mask: np.ndarray) -> tuple[int, int, int, int] | None:
+    """(top, left, bottom, right), exclusive, of the True pixels of a boolean mask; None if none."""
     rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
     if len(rows) == 0:
         return None
     return int(rows[0]), int(cols[0]), int(rows[-1]) + 1, int(cols[-1]) + 1
 
 
-def prepare_image(rgba: np.ndarray, spec: ImageSpec, keep_background: bool = False) -> np.ndarray:
+def prepare_image(rgba: np.ndarray, spec: ImageSpec, keep_background: bool = False,
+                  foreground_ratio: float | None = None, box: tuple[int, int, int, int] | None = None) -> np.ndarray:
     """The encoder's input (3, size, size) float32 from an RGBA (or RGB) uint8 image.
 
     Transparent pixels are composited onto ``spec.background`` (``keep_background`` keeps the
     image's own colour under them instead).  The crop is the :func:`object_box`, or the whole image
     where it finds nothing (a fully transparent image is an ImageError: there is no object); the
-    crop is grown to a square plus ``spec.margin`` per side (taking the image's own surroundings,
+    crop is grown to a square the object's longest side fills ``foreground_ratio`` of (default the
+    spec's, ``1 - 2 spec.margin``) (taking the image's own surroundings,
     beyond its border the background colour or, for an opaque image, its edge pixels), resized with
     a box filter (antialiasing) and normalised by ``spec.mean`` / ``spec.std``.
     """
@@ -137,11 +149,15 @@ def prepare_image(rgba: np.ndarray, spec: ImageSpec, keep_background: bool = Fal
         rgba = np.concatenate([rgba, np.full(rgba.shape[:2] + (1,), 255, np.uint8)], axis=2)
     if rgba[..., 3].max() == 0:
         raise ImageError("the image is fully transparent: there is no object to reconstruct")
-    box = object_box(rgba, spec.border_tolerance)
+    if box is None:
+        box = object_box(rgba, spec.border_tolerance)
     h, w = rgba.shape[:2]
     top, left, bottom, right = box if box is not None else (0, 0, h, w)
     side = max(bottom - top, right - left)
-    full = side + 2 * int(round(side * spec.margin / max(1e-6, 1 - 2 * spec.margin)))
+    ratio = spec.foreground_ratio if foreground_ratio is None else foreground_ratio
+    if not 0.05 <= ratio <= 1:
+        raise ImageError(f"foreground_ratio must be in 0.05..1, got {ratio}")
+    full = side + 2 * int(round(side * (1 - ratio) / 2 / ratio))
     y0 = top - (full - (bottom - top)) // 2            # the square around the crop, image coordinates
     x0 = left - (full - (right - left)) // 2
     ys, ye, xs, xe = max(0, y0), min(h, y0 + full), max(0, x0), min(w, x0 + full)
@@ -171,3 +187,162 @@ def prepare_image(rgba: np.ndarray, spec: ImageSpec, keep_background: bool = Fal
 def load_and_prepare(data: bytes | str | Path, spec: ImageSpec, max_pixels: int = MAX_PIXELS_DEFAULT) -> np.ndarray:
     """:func:`decode_image` then :func:`prepare_image`: encoded image to encoder input."""
     return prepare_image(decode_image(data, max_pixels), spec)
+
+
+# -- the object's mask: alpha, the foreground network, or neither ------------------------------------
+
+REMOVE_BACKGROUND = ("auto", "true", "false")
+"""``auto``: an image with transparency uses its alpha, an opaque one the foreground network's mask;
+``true``: the same, but an opaque image without a network is an error; ``false``: no mask (an
+opaque image is cropped by its border colour, as before the network existed)."""
+
+
+class NoObjectError(ImageError):
+    """The image shows no object to reconstruct (the mask is empty or too small)."""
+
+
+@dataclass(frozen=True)
+class MaskSpec:
+    """How the foreground network takes an image: the whole image resized to ``size`` x ``size``
+    (stretched: the network is trained on photos of many aspect ratios), normalised as the
+    encoder's images.  ``min_area``: the share of the image the object must cover to count as
+    found; ``keep``: mask components smaller than this share of the largest are dropped;
+    ``refine``: when the object's square (its box's longest side grown by ``refine_margin`` on each
+    side) covers less than this share of the image, the network runs a second time on that square,
+    so that a small object is seen at the network's full resolution (0: never)."""
+
+    size: int = 128
+    mean: tuple[float, float, float] = (0.5, 0.5, 0.5)
+    std: tuple[float, float, float] = (0.25, 0.25, 0.25)
+    min_area: float = 0.002
+    keep: float = 0.1
+    refine: float = 0.5
+    refine_margin: float = 0.2
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> MaskSpec:
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+def mask_input(rgb: np.ndarray, spec: MaskSpec) -> np.ndarray:
+    """The foreground network's input (3, size, size) float32 of an (H, W, 3) uint8 image."""
+    img = Image.fromarray(np.ascontiguousarray(rgb[..., :3]), "RGB")
+    small = min(img.width, img.height) >= spec.size
+    img = img.resize((spec.size, spec.size), Image.Resampling.BOX if small else Image.Resampling.BILINEAR)
+    x = np.asarray(img, np.float32) / 255.0
+    x = (x - np.asarray(spec.mean, np.float32)) / np.asarray(spec.std, np.float32)
+    return np.ascontiguousarray(x.transpose(2, 0, 1))
+
+
+def resize_mask(mask: np.ndarray, height: int, width: int) -> np.ndarray:
+    """A float mask resized to (height, width): bilinear up, box-filtered down."""
+    img = Image.fromarray(np.ascontiguousarray(mask, dtype=np.float32), "F")
+    down = height <= img.height and width <= img.width
+    return np.asarray(img.resize((width, height), Image.Resampling.BOX if down else Image.Resampling.BILINEAR),
+                      np.float32)
+
+
+def mask_output(logits: np.ndarray, height: int, width: int) -> np.ndarray:
+    """(height, width) float32 object probability of the network's (size, size) logits."""
+    p = 1.0 / (1.0 + np.exp(-np.clip(np.asarray(logits, np.float32).reshape(logits.shape[-2:]), -30, 30)))
+    return np.clip(resize_mask(p, height, width), 0.0, 1.0)
+
+
+def clean_mask(mask: np.ndarray, spec: MaskSpec) -> np.ndarray:
+    """The mask without its specks: components (of pixels above 0.5) smaller than ``spec.keep`` of
+    the largest are cleared, with the soft edge around them; NoObjectError when what is left covers
+    less than ``spec.min_area`` of the image."""
+    from scipy import ndimage
+
+    hard = mask > 0.5
+    labels, n = ndimage.label(hard)
+    if n == 0:
+        raise NoObjectError("no object found in the image: send a photo of one object that stands out from "
+                            "its background, or a PNG with transparency around the object")
+    sizes = np.bincount(labels.ravel(), minlength=n + 1)[1:]
+    keep = np.flatnonzero(sizes >= spec.keep * sizes.max()) + 1
+    if int(sizes[keep - 1].sum()) < spec.min_area * mask.size:
+        raise NoObjectError(f"no object found in the image: the largest region that looks like one covers "
+                            f"{sizes.max() / mask.size:.2%} of it (at least {spec.min_area:.1%} is needed); "
+                            "send a photo where the object fills more of the frame")
+    if len(keep) == n:
+        return mask
+    kept = ndimage.binary_dilation(np.isin(labels, keep), iterations=2)
+    return np.where(kept, mask, 0.0).astype(np.float32)
+
+
+def object_mask(rgb: np.ndarray, segment, spec: MaskSpec) -> np.ndarray:
+    """(H, W) float32 object mask of an opaque image from ``segment`` (the foreground network: an
+    (h, w, 3) uint8 image to its (h, w) object probability), specks removed (:func:`clean_mask`;
+    NoObjectError when nothing is left); a small object is segmented again in its square (see
+    :class:`MaskSpec`), the second mask replacing the first there and clearing it elsewhere (unless
+    it finds nothing: then the first stands)."""
+    h, w = rgb.shape[:2]
+    mask = clean_mask(np.asarray(segment(rgb), np.float32), spec)
+    top, left, bottom, right = mask_bounds(mask > 0.5)
+    side = int(round(max(bottom - top, right - left) * (1 + 2 * spec.refine_margin)))
+    ty, tx = int(round((top + bottom - side) / 2)), int(round((left + right - side) / 2))
+    y0, y1, x0, x1 = max(0, ty), min(h, ty + side), max(0, tx), min(w, tx + side)
+    if (y1 - y0) * (x1 - x0) >= spec.refine * h * w or min(y1 - y0, x1 - x0) < 8:
+        return mask
+    fine = np.zeros_like(mask)
+    fine[y0:y1, x0:x1] = np.asarray(segment(np.ascontiguousarray(rgb[y0:y1, x0:x1])), np.float32)
+    try:
+        return clean_mask(fine, spec)
+    except NoObjectError:                # the closer look lost the object: keep the first look's mask
+        return mask
+
+
+@dataclass
+class Framed:
+    """The encoder's input and what was done to get it: ``image`` (3, S, S); ``mask_source``
+    "alpha" (the image's transparency), "network" (the foreground network) or "none"; ``box``
+    (top, left, bottom, right), exclusive, the object's crop box in the image's pixels, None when
+    the whole image was used; ``mask`` (H, W) uint8, the mask applied (None for "none")."""
+
+    image: np.ndarray
+    mask_source: str
+    box: tuple[int, int, int, int] | None
+    mask: np.ndarray | None
+
+
+def frame_object(rgba: np.ndarray, spec: ImageSpec, segment=None, remove_background: str = "auto",
+                 foreground_ratio: float | None = None, mask_spec: MaskSpec = MaskSpec()) -> Framed:
+    """Find the object, cut it out, frame it and make the encoder's input: the one path of photos
+    into the image model (training, evaluation, the CLI and the service).
+
+    The mask: an image with transparency (some alpha below 250) uses its alpha; otherwise, unless
+    ``remove_background`` is "false", ``segment`` (a callable from (H, W, 3) uint8 to an (H, W)
+    object probability, the foreground network) gives it (:func:`object_mask`: specks removed, a
+    small object segmented again at full resolution; NoObjectError when nothing is found).  The masked object is composited on ``spec.background``
+    and framed by :func:`prepare_image` (its crop box, a square the object fills
+    ``foreground_ratio`` of, resized).  Without a mask, :func:`prepare_image` alone (an opaque image
+    is cropped by its border colour)."""
+    if remove_background not in REMOVE_BACKGROUND:
+        raise ImageError(f"remove_background must be one of {', '.join(REMOVE_BACKGROUND)}, got {remove_background!r}")
+    rgba = np.asarray(rgba)
+    if rgba.ndim != 3 or rgba.shape[2] not in (3, 4) or rgba.dtype != np.uint8:
+        raise ImageError(f"expected an (H, W, 3|4) uint8 image, got {rgba.dtype} {rgba.shape}")
+    if rgba.shape[2] == 3:
+        rgba = np.concatenate([rgba, np.full(rgba.shape[:2] + (1,), 255, np.uint8)], axis=2)
+    has_alpha = int(rgba[..., 3].min()) < 250
+    if has_alpha:
+        if rgba[..., 3].max() == 0:
+            raise NoObjectError("the image is fully transparent: there is no object to reconstruct")
+        image = prepare_image(rgba, spec, foreground_ratio=foreground_ratio)
+        return Framed(image, "alpha", object_box(rgba, spec.border_tolerance), rgba[..., 3].copy())
+    if remove_background == "false" or segment is None:
+        if remove_background == "true":
+            raise ImageError("remove_background=true needs a foreground network, and this model has none; "
+                             "send an image with transparency around the object")
+        image = prepare_image(rgba, spec, foreground_ratio=foreground_ratio)
+        return Framed(image, "none", object_box(rgba, spec.border_tolerance), None)
+    rgb = rgba[..., :3]
+    mask = object_mask(rgb, segment, mask_spec)
+    alpha = np.clip(np.round(mask * 255), 0, 255).astype(np.uint8)
+    box = mask_bounds(alpha >= 128)
+    image = prepare_image(np.dstack([rgb, alpha]), spec, foreground_ratio=foreground_ratio, box=box)
+    return Framed(image, "network", box, alpha)

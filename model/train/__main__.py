@@ -1,5 +1,6 @@
 """Train a network of the paper on a built dataset: classification (section 5.1), an autoencoder
-or shape completion (section 5.2), or shape from a single image (section 5.3).
+or shape completion (section 5.2), or shape from a single image (section 5.3); and the foreground
+network that finds the object in a photo before the image model sees it.
 
     python -m model.train autoencoder --data DIR --depth D --arch {aocnn,ocnn-binary,ocnn-patch,
         ocnn-patch-star,psg} --out RUN [--iters N] [--batch-size B] [--lr LR] [--optimizer adam|sgd]
@@ -7,6 +8,7 @@ or shape completion (section 5.2), or shape from a single image (section 5.3).
         --decoder {aocnn,psg,atlasnet} --out RUN [...]
     python -m model.train completion --data DIR --depth D --arch {aocnn,ocnn-patch,...} --out RUN [...]
     python -m model.train classify --data DIR --depth D --arch {aocnn,ocnn} [--up y] --out RUN [...]
+    python -m model.train foreground --data DIR --depth D --out RUN [--width 8] [--image-size 128] [...]
 
 Progress bar with the loss, validation every --val-every steps, checkpoints written atomically
 to RUN/checkpoint.pt (a rerun resumes from it), metrics appended to RUN/metrics.jsonl, fixed
@@ -83,7 +85,20 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="share of samples composited onto a random background (default 0.5)")
     i.add_argument("--teacher", default=None,
                    help="an aocnn autoencoder run: regress the encoder onto its latent codes and use its "
-                        "decoder (default: train encoder and decoder end to end)")
+                        "decoder; or an image run or checkpoint: start from it and regress onto its codes "
+                        "of the clean renders (default: train encoder and decoder end to end)")
+    i.add_argument("--photo-share", type=float, default=0.0,
+                   help="share of samples made photos (a scene, no alpha) and cut out again with an "
+                        "imperfect mask, as the service's background removal does (default 0)")
+    i.add_argument("--foreground-ratio", type=float, default=None,
+                   help="share of the encoder's square the object's longest side fills (default 0.9)")
+    f = sub.add_parser("foreground", parents=[common],
+                       help="train the foreground network that finds the object in a photo (background removal)")
+    f.add_argument("--arch", choices=("unet",), default="unet", help="unet (default): a compact U-Net")
+    f.add_argument("--width", dest="encoder_width", type=int, default=None,
+                   help="the U-Net's first-stage channels, doubling per stage up to 8x (default 8)")
+    f.add_argument("--image-size", type=int, default=128,
+                   help="the network's input side: photos are resized to it (default 128, a multiple of 16)")
     cached = argparse.ArgumentParser(add_help=False)
     cached.add_argument("--workers", type=int, default=1,
                         help="processes building the task's octree cache beside the dataset on first use (default 1)")

@@ -16,6 +16,7 @@ from pathlib import Path
 import torch
 
 from ..files import sha256_file
+from ..preprocess import ImageSpec
 
 
 @dataclass
@@ -48,9 +49,17 @@ class TrainConfig:
     encoder_width: int | None = None           # image task: its width (None: the encoder's default)
     image_size: int = 128                      # image task: encoder input side
     background_share: float = 0.5              # image task: samples composited onto a background
-    teacher: str | None = None                 # image task: regress onto this autoencoder run's latents
+    teacher: str | None = None                 # image task: regress onto this autoencoder's (or image model's) codes
+    photo_share: float = 0.0                   # image task: samples made photos, brought back with an imperfect mask
+    foreground_ratio: float | None = None      # image task: share of the square the object fills (None: 0.9)
     workers: int = 1                           # completion, classify: processes building the octree cache
     up: str = "y"                              # classify: the up axis of the dataset's shapes
+
+    def image_spec(self) -> ImageSpec:
+        """The preprocessing of an image task's encoder (its input side and framing)."""
+        if self.foreground_ratio is None:
+            return ImageSpec(size=self.image_size)
+        return ImageSpec(size=self.image_size, margin=round((1 - self.foreground_ratio) / 2, 6))
 
     def check(self) -> None:
         """Raise ValueError naming the first generic setting that cannot train (the task checks

@@ -3,7 +3,9 @@
 Training takes a random view of each shape and, for a share of the samples, composites it onto a
 random background (plain colour, gradient, noise, or another shape's render) before the same
 :func:`model.preprocess.prepare_image` the service runs, so photos with a background are in
-distribution.  Evaluation takes a fixed view per shape on the spec's plain background.
+distribution; another share is made a photo (an object on a real or procedural scene, no alpha) and
+brought back through the service's background removal with an imperfect mask.  Evaluation takes a
+fixed view per shape on the spec's plain background.
 """
 
 from __future__ import annotations
@@ -12,7 +14,8 @@ import numpy as np
 
 from ..data.render import composite
 from ..data.shapes import stable_hash
-from ..preprocess import ImageSpec, prepare_image
+from ..data.photos import ENCODER_STYLE, imperfect_mask, photo_composite, photo_split_view
+from ..preprocess import ImageSpec, MaskSpec, NoObjectError, frame_object, prepare_image
 from .data import Sample
 
 
@@ -43,16 +46,21 @@ def _fit(img: np.ndarray, h: int, w: int) -> np.ndarray:
 
 
 def image_batch(samples: list[Sample], spec: ImageSpec, rng: np.random.Generator | None,
-                background_share: float = 0.5, others: list[Sample] | None = None) -> np.ndarray:
-    """Encoder inputs (B, 3, S, S) float32 of ``samples``: random views and backgrounds with
-    ``rng``, each shape's :func:`eval_view` on the plain background without."""
+                background_share: float = 0.5, others: list[Sample] | None = None,
+                views: np.ndarray | None = None, photo_share: float = 0.0) -> np.ndarray:
+    """Encoder inputs (B, 3, S, S) float32 of ``samples``: with ``rng``, views ``views`` (default
+    random), a share ``photo_share`` of them made photos (:func:`photo_input`), a share
+    ``background_share`` of the rest on random backgrounds; without, each shape's
+    :func:`eval_view` on the plain background."""
     out = np.empty((len(samples), 3, spec.size, spec.size), np.float32)
     for i, s in enumerate(samples):
         if rng is None:
             out[i] = prepare_image(s.images[eval_view(s.shape_id, len(s.images))], spec)
             continue
-        rgba = s.images[int(rng.integers(len(s.images)))]
-        if rng.random() < background_share:
+        rgba = s.images[int(rng.integers(len(s.images))) if views is None else int(views[i])]
+        if rng.random() < photo_share:
+            out[i] = photo_input(rgba, spec, rng)
+        elif rng.random() < background_share:
             bg = random_background(rng, rgba.shape[:2], others or [])
             a = rgba[..., 3:4].astype(np.float32) / 255.0
             rgb = np.round(rgba[..., :3] * a + bg * (1 - a)).astype(np.uint8)
@@ -60,3 +68,44 @@ def image_batch(samples: list[Sample], spec: ImageSpec, rng: np.random.Generator
         else:
             out[i] = prepare_image(rgba, spec)
     return out
+
+
+def photo_input(rgba: np.ndarray, spec: ImageSpec, rng: np.random.Generator) -> np.ndarray:
+    """The encoder input of a render made a photo (:func:`photo_composite`) and brought back through
+    the service's path (:func:`frame_object`) with an imperfect mask in place of the foreground
+    network's, framed at a jittered foreground ratio."""
+    photo = photo_composite(rgba, rng, "train", ENCODER_STYLE)
+    mask = imperfect_mask(photo.mask, rng)
+    ratio = min(1.0, spec.foreground_ratio * rng.uniform(0.9, 1.08))
+    try:
+        return frame_object(photo.rgb, spec, segment=lambda _: mask, foreground_ratio=ratio,
+                            mask_spec=MaskSpec(refine=0.0)).image           # the mask stands for the final one
+    except NoObjectError:                # the degraded mask lost the object: the plain render instead
+        return prepare_image(rgba, spec)
+
+
+def photo_batch(samples: list[Sample], spec: ImageSpec, segment=None,
+                remove_background: str = "auto") -> tuple[np.ndarray, list[dict]]:
+    """Encoder inputs (B, 3, S, S) of each shape's fixed photo-like test view
+    (:func:`photo_split_view`) through :func:`frame_object` with ``segment`` (the foreground
+    network, or None), and per shape what was done: the mask's source, its IoU with the exact
+    mask (None without a mask), the crop box."""
+    out = np.empty((len(samples), 3, spec.size, spec.size), np.float32)
+    info = []
+    for i, s in enumerate(samples):
+        photo = photo_split_view(s.images, s.shape_id)
+        try:
+            framed = frame_object(photo.rgb, spec, segment, remove_background)
+        except NoObjectError:                 # the network found nothing: the whole photo, as before it
+            framed = frame_object(photo.rgb, spec, None, "false")
+            framed.mask_source = "missed"
+        out[i] = framed.image
+        iou = None
+        if framed.mask is not None:
+            ours, truth = framed.mask > 127, photo.mask > 0.5
+            iou = float((ours & truth).sum() / max(1, (ours | truth).sum()))
+        elif framed.mask_source == "missed":
+            iou = 0.0
+        info.append({"mask_source": framed.mask_source, "mask_iou": iou, "box": framed.box,
+                     "photo_size": list(photo.rgb.shape[:2])})
+    return out, info

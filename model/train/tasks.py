@@ -18,10 +18,11 @@ from torch import nn
 from ..networks import ARCHS, IMAGE_DECODERS, IMAGE_ENCODERS, Autoencoder, ImageToShape
 from ..networks.decoder import STRUCTURE_LOSSES
 from ..nn.tensors import OctreeTensors
-from ..preprocess import ImageSpec
+from ..preprocess import ImageSpec, MaskSpec, prepare_image
 from .config import TrainConfig, read_run
 from .data import RecordSet
-from .images import image_batch
+from .foreground import mask_batch
+from .images import eval_view, image_batch
 
 
 class Task(Protocol):
@@ -79,7 +80,12 @@ class AutoencoderTask(OctreeInputTask):
 
 
 class ImageTask:
-    """Paper section 5.3: a render in, the shape out (``cfg.encoder`` + ``cfg.arch`` as decoder)."""
+    """Paper section 5.3: a render in, the shape out (``cfg.encoder`` + ``cfg.arch`` as decoder).
+
+    With ``cfg.teacher`` the encoder is regressed onto a teacher's latent codes and the teacher's
+    decoder is used: an autoencoder's code of each shape, or an image model's code of each view on
+    the plain background (the student starts from the teacher's weights and learns to give photos
+    the code the teacher gives the clean render)."""
 
     name = "image"
 
@@ -92,11 +98,18 @@ class ImageTask:
             raise ValueError(f"--image-size must be in 32..512, got {cfg.image_size}")
         if not 0 <= cfg.background_share <= 1:
             raise ValueError(f"--background-share must be in [0, 1], got {cfg.background_share}")
+        if not 0 <= cfg.photo_share <= 1:
+            raise ValueError(f"--photo-share must be in [0, 1], got {cfg.photo_share}")
+        if cfg.foreground_ratio is not None and not 0.3 <= cfg.foreground_ratio <= 1:
+            raise ValueError(f"--foreground-ratio must be in 0.3..1, got {cfg.foreground_ratio}")
         if cfg.teacher is not None:
             teacher = self._teacher(cfg)[1]
             if cfg.arch != "aocnn" or teacher.arch != "aocnn":
-                raise ValueError("--teacher needs --decoder aocnn and an aocnn autoencoder run")
-            for key in ("depth", "latent", "channels", "pred_hidden", "decoder_blocks"):
+                raise ValueError("--teacher needs --decoder aocnn and an aocnn autoencoder or image run")
+            keys = ["depth", "latent", "channels", "pred_hidden", "decoder_blocks"]
+            if teacher.task == "image":
+                keys += ["encoder", "encoder_width", "image_size"]
+            for key in keys:
                 if getattr(teacher, key) != getattr(cfg, key):
                     raise ValueError(f"--teacher was trained with {key}={getattr(teacher, key)!r}, "
                                      f"not {getattr(cfg, key)!r}: pass the same setting")
@@ -107,18 +120,24 @@ class ImageTask:
         return _load_teacher(str(cfg.teacher))
 
     def spec(self, cfg) -> ImageSpec:
-        return ImageSpec(size=cfg.image_size)
+        return cfg.image_spec()
 
     def dataset(self, cfg, split, seed, points=2048, limit=None):
         data = RecordSet(cfg.data, split, "adaptive", points=points, depth=cfg.depth, limit=limit,
                          seed=seed, images=True, categories=cfg.categories)
-        if cfg.teacher is not None:            # the teacher's codes of every shape, computed once
-            model = self._teacher(cfg)[0]
+        if cfg.teacher is not None:            # the teacher's codes of every shape (or view), computed once
+            model, tcfg = self._teacher(cfg)
             codes = []
             with torch.no_grad():
-                for s in range(0, len(data), 16):
-                    octree, _ = data.batch(np.arange(s, min(len(data), s + 16)))
-                    codes.append(model.encoder(OctreeTensors.from_octree(octree)))
+                if tcfg.task == "image":
+                    spec = tcfg.image_spec()
+                    for s in data.samples:
+                        views = np.stack([prepare_image(v, spec) for v in s.images])
+                        codes.append(model.encoder(torch.from_numpy(views))[None])
+                else:
+                    for s in range(0, len(data), 16):
+                        octree, _ = data.batch(np.arange(s, min(len(data), s + 16)))
+                        codes.append(model.encoder(OctreeTensors.from_octree(octree)))
             data.latents = torch.cat(codes)
         return data
 
@@ -127,14 +146,28 @@ class ImageTask:
                              encoder_width=cfg.encoder_width, hidden=cfg.pred_hidden,
                              structure_loss=cfg.structure_loss, decoder_blocks=cfg.decoder_blocks)
         if cfg.teacher is not None:
-            model.adopt_decoder(self._teacher(cfg)[0].decoder)
+            teacher, tcfg = self._teacher(cfg)
+            if tcfg.task == "image":
+                model.load_state_dict(teacher.state_dict())
+            else:
+                model.adopt_decoder(teacher.decoder)
         return model
 
     def inputs(self, cfg, dataset, indices, rng):
         samples = [dataset.samples[i] for i in indices]
-        images = image_batch(samples, self.spec(cfg), rng, cfg.background_share, dataset.samples)
+        views = None
+        if rng is not None:
+            views = np.array([rng.integers(len(s.images)) for s in samples])
+        images = image_batch(samples, self.spec(cfg), rng, cfg.background_share, dataset.samples, views,
+                             cfg.photo_share)
         if cfg.teacher is not None:
-            return torch.from_numpy(images), None, None, dataset.latents[torch.as_tensor(np.asarray(indices))]
+            idx = torch.as_tensor(np.asarray(indices))
+            latents = dataset.latents[idx]
+            if latents.ndim == 3:             # an image teacher: the code of the view shown
+                if views is None:
+                    views = np.array([eval_view(s.shape_id, len(s.images)) for s in samples])
+                latents = latents[torch.arange(len(idx)), torch.as_tensor(views)]
+            return torch.from_numpy(images), None, None, latents
         if cfg.arch == "aocnn":
             octree, points = dataset.batch(indices)
             octree_t = OctreeTensors.from_octree(octree)
@@ -210,17 +243,59 @@ class ClassifyTask(OctreeInputTask):
 
 @functools.lru_cache(maxsize=4)
 def _load_teacher(run: str) -> tuple[nn.Module, TrainConfig]:
-    """A teacher autoencoder run (model in eval mode, config), loaded once per process."""
+    """A teacher run (model in eval mode, config), loaded once per process: an autoencoder, or an
+    image model (built from its weights alone: its own teacher is not needed)."""
     saved = read_run(run)
-    if saved.config.task != "autoencoder":
-        raise ValueError(f"--teacher {run} is a {saved.config.task} run, not an autoencoder")
-    model = AutoencoderTask().build_model(saved.config)
+    task = saved.config.task
+    if task not in ("autoencoder", "image"):
+        raise ValueError(f"--teacher {run} is a {task} run, not an autoencoder or image model")
+    if task == "image":
+        c = saved.config
+        model = ImageToShape(c.encoder, c.arch, c.depth, latent=c.latent, base_channels=c.channels,
+                             encoder_width=c.encoder_width, hidden=c.pred_hidden,
+                             structure_loss=c.structure_loss, decoder_blocks=c.decoder_blocks)
+    else:
+        model = AutoencoderTask().build_model(saved.config)
     model.load_state_dict(saved.weights)
     return model.eval(), saved.config
 
 
+class ForegroundTask:
+    """Background removal for photos: a render composited into a photo in, its exact mask out
+    (``cfg.image_size``: the network's input side; ``cfg.encoder_width``: the U-Net's width)."""
+
+    name = "foreground"
+
+    def check(self, cfg: TrainConfig) -> None:
+        if cfg.arch != "unet":
+            raise ValueError(f"unknown foreground network {cfg.arch!r}; choose unet")
+        if cfg.image_size % 16 or not 32 <= cfg.image_size <= 512:
+            raise ValueError(f"--image-size must be a multiple of 16 in 32..512, got {cfg.image_size}")
+
+    def spec(self, cfg) -> MaskSpec:
+        return MaskSpec(size=cfg.image_size)
+
+    def dataset(self, cfg, split, seed, points=2048, limit=None):
+        return RecordSet(cfg.data, split, "adaptive", points=16, depth=cfg.depth, limit=limit, seed=seed,
+                         images=True, categories=cfg.categories)
+
+    def build_model(self, cfg):
+        from ..networks.foreground import ForegroundModel
+        return ForegroundModel(cfg.encoder_width or FOREGROUND_WIDTH)
+
+    def inputs(self, cfg, dataset, indices, rng):
+        images, masks = mask_batch([dataset.samples[i] for i in indices], self.spec(cfg), rng)
+        return torch.from_numpy(images), torch.from_numpy(masks)
+
+    def encode(self, model, cfg, dataset, indices):
+        raise ValueError("the foreground network has no latent code")
+
+
+FOREGROUND_WIDTH = 8
+"""The foreground U-Net's default width (its first stage's channels)."""
+
 TASKS: dict[str, Task] = {"autoencoder": AutoencoderTask(), "image": ImageTask(), "completion": CompletionTask(),
-                          "classify": ClassifyTask()}
+                          "classify": ClassifyTask(), "foreground": ForegroundTask()}
 
 
 def check_config(cfg: TrainConfig) -> None:

@@ -13,9 +13,10 @@ from model.checkpoint import load_model
 CHECKPOINTS = Path(__file__).resolve().parents[2] / "models" / "checkpoints"
 BUNDLES = CHECKPOINTS.parent / "bundles"
 SHIPPED = ["image-to-shape", "completion", "classify"]
+CHECKPOINTED = [*SHIPPED, "foreground"]           # the foreground network ships inside the image bundle
 
 
-@pytest.mark.parametrize("name", SHIPPED)
+@pytest.mark.parametrize("name", CHECKPOINTED)
 def test_shipped_checkpoint_matches_its_json_and_works(name):
     folder = CHECKPOINTS / name
     meta = json.loads((folder / "model.json").read_text())
@@ -34,10 +35,10 @@ def _decodes_a_photo(loaded, meta):
     from model.decode import decode
     from model.networks import TorchSteps
     from model.octree.batch import split_octree
-    from model.preprocess import ImageSpec, prepare_image
+    from model.preprocess import prepare_image
 
     model, cfg = loaded.model, loaded.config
-    x = torch.from_numpy(prepare_image(_photo(), ImageSpec(size=cfg.image_size))[None])
+    x = torch.from_numpy(prepare_image(_photo(), cfg.image_spec())[None])
     with torch.no_grad():
         latent = model.encoder(x)
     assert torch.isfinite(latent).all()
@@ -89,8 +90,61 @@ def _classifies_unseen_shapes(loaded, meta):
     assert 0 < meta["evaluation"]["voted_accuracy"] <= 1
 
 
+def _photo_of_an_unseen_chair(seed: int = 0):
+    """A chair the network never saw, rendered and composited on a held-out photograph."""
+    from model.data import generate
+    from model.data.photos import PhotoStyle, photo_composite
+    from model.data.render import render
+
+    rgba, _ = render(generate("chair", 9001), 40.0, 25.0, 2.8, size=137)
+    return photo_composite(rgba, np.random.default_rng(seed), "test", PhotoStyle(scale=(0.5, 0.8), real=1.0))
+
+
+def _finds_the_object_in_a_photo(loaded, meta):
+    """An unseen chair on held-out photographs: the mask finds it (IoU with the exact mask)."""
+    from model.preprocess import MaskSpec, mask_input, mask_output, object_mask
+
+    spec = MaskSpec(size=loaded.config.image_size)
+
+    def segment(rgb):
+        with torch.no_grad():
+            logits = loaded.model.net(torch.from_numpy(mask_input(rgb, spec)[None])).numpy()
+        return mask_output(logits[0, 0], *rgb.shape[:2])
+
+    ious = []
+    for seed in range(4):
+        photo = _photo_of_an_unseen_chair(seed)
+        ours, truth = object_mask(photo.rgb, segment, spec) > 0.5, photo.mask > 0.5
+        ious.append((ours & truth).sum() / (ours | truth).sum())
+    assert np.median(ious) >= 0.7, ious
+    assert 0 < meta["evaluation"]["mask_iou_category_mean"] <= 1
+
+
 CHECKS = {"image-to-shape": _decodes_a_photo, "completion": _completes_a_scan_with_holes,
-          "classify": _classifies_unseen_shapes}
+          "classify": _classifies_unseen_shapes, "foreground": _finds_the_object_in_a_photo}
+
+
+def test_the_image_bundle_carries_the_shipped_foreground_network():
+    """The image bundle's foreground graph is the foreground checkpoint's export: onnxruntime gives
+    torch's logits on a photo, and the service's framing finds the chair in it."""
+    from export.bundle import load_bundle
+    from export.runtime import Runtime
+    from model.preprocess import frame_object, mask_input
+
+    bundle = load_bundle(BUNDLES / "image-to-shape")
+    meta = json.loads((CHECKPOINTS / "foreground" / "model.json").read_text())
+    assert bundle.meta["provenance"]["foreground"]["weights_sha256"] == meta["weights_sha256"]
+    runtime = Runtime(bundle, threads=1)
+    photo = _photo_of_an_unseen_chair()
+    x = mask_input(photo.rgb, bundle.mask_spec())[None]
+    with torch.no_grad():
+        want = load_model(CHECKPOINTS / "foreground").model.net(torch.from_numpy(x)).numpy()
+    assert np.abs(runtime.run("foreground", {"image": x})[0] - want).max() <= 1e-3
+    framed = frame_object(photo.rgb, bundle.image_spec(), runtime.segment, mask_spec=bundle.mask_spec())
+    assert framed.mask_source == "network"
+    t, l, b, r = framed.box
+    tt, tl, tb, tr = photo.box
+    assert max(abs(t - tt), abs(l - tl), abs(b - tb), abs(r - tr)) <= 0.1 * max(tb - tt, tr - tl)
 
 
 def _photo() -> np.ndarray:

@@ -1,0 +1,277 @@
+"""Photo-like composites of the dataset's renders: what a phone photo of the object looks like.
+
+A render (RGBA, exact alpha) is placed at a random scale, offset and aspect ratio on a background
+(a crop of a real photograph, or a procedural gradient, noise, texture or random shapes), under
+random lighting, with a soft shadow beneath the object, colour jitter of object and scene, blur,
+sensor noise and JPEG compression.  The result has no alpha; the exact object mask comes with it.
+
+Real photographs are scikit-image's sample images, split once: :data:`TRAIN_PHOTOS` for training,
+:data:`TEST_PHOTOS` only for the photo-like test split (none shows one of the dataset's
+categories).  The foreground network trains on these composites, the image model trains on them
+after the segmentation step, and :func:`photo_split_view` makes the fixed photo-like test view of a
+shape, so every consumer composes photos with this one module.
+"""
+
+from __future__ import annotations
+
+import functools
+import io
+from pathlib import Path
+from dataclasses import dataclass
+
+import numpy as np
+from PIL import Image, ImageDraw, ImageFilter
+from scipy import ndimage
+
+from ..preprocess import mask_bounds
+from .shapes import stable_hash
+
+TRAIN_PHOTOS = ("astronaut.png", "chelsea.png", "coffee.png", "motorcycle_left.png", "brick.png", "grass.png",
+                "camera.png", "coins.png", "moon.png", "page.png", "clock_motion.png", "ihc.png", "retina.jpg", "cell.png")
+"""scikit-image sample photographs used as training backgrounds."""
+TEST_PHOTOS = ("rocket.jpg", "gravel.png", "hubble_deep_field.jpg", "text.png")
+"""Sample photographs kept out of training: backgrounds of the photo-like test split only."""
+SPLITS = {"train": TRAIN_PHOTOS, "test": TEST_PHOTOS}
+
+
+@dataclass(frozen=True)
+class PhotoStyle:
+    """The ranges a composite is drawn from.
+
+    ``scale``: the object's longest side as a share of the photo's short side; ``short_side``:
+    the photo's short side in pixels; ``aspect``: long / short side; ``real``: the share of real
+    photographs among backgrounds; ``cut``: the largest share of the object's box allowed to fall
+    outside the photo."""
+
+    scale: tuple[float, float] = (0.15, 0.95)
+    short_side: tuple[int, int] = (160, 320)
+    aspect: tuple[float, float] = (1.0, 1.6)
+    real: float = 0.5
+    shadow: float = 0.6
+    jpeg: float = 0.7
+    cut: float = 0.1
+
+
+@dataclass
+class Photo:
+    """A composite: ``rgb`` (H, W, 3) uint8 without alpha; ``mask`` (H, W) float32 in [0, 1], the
+    object's exact coverage of each pixel; ``box`` (top, left, bottom, right), exclusive, of the
+    mask's pixels above 0.5 (None when the object fell outside the photo)."""
+
+    rgb: np.ndarray
+    mask: np.ndarray
+    box: tuple[int, int, int, int] | None
+
+
+@functools.cache
+def real_photo(name: str) -> np.ndarray:
+    """(H, W, 3) uint8 of a scikit-image sample photograph (a file of its data folder, installed
+    with the package: nothing is downloaded)."""
+    import skimage
+
+    with Image.open(Path(skimage.__file__).parent / "data" / name) as img:
+        return np.asarray(img.convert("RGB")).copy()
+
+
+def background(rng: np.random.Generator, h: int, w: int, split: str = "train", real: float = 0.5) -> np.ndarray:
+    """(h, w, 3) float32 in [0, 255]: a crop of a real photograph of ``split`` (share ``real``) or a
+    procedural scene: gradient, multi-scale noise, stripes or checks, or random shapes on a colour;
+    then a random lighting ramp."""
+    if rng.random() < real:
+        names = SPLITS[split]
+        src = real_photo(names[int(rng.integers(len(names)))])
+        zoom = max(h / src.shape[0], w / src.shape[1]) * rng.uniform(1.0, 2.5)   # source pixels -> ours
+        ch, cw = min(src.shape[0], round(h / zoom)), min(src.shape[1], round(w / zoom))
+        y, x = int(rng.integers(src.shape[0] - ch + 1)), int(rng.integers(src.shape[1] - cw + 1))
+        img = Image.fromarray(src[y:y + ch, x:x + cw]).resize((w, h), Image.Resampling.BILINEAR)
+        if rng.random() < 0.5:
+            img = img.transpose(Image.Transpose.FLIP_LEFT_RIGHT)
+        if rng.random() < 0.5:                       # a shallow depth of field
+            img = img.filter(ImageFilter.GaussianBlur(rng.uniform(1, 6)))
+        bg = np.asarray(img, np.float32)
+    else:
+        kind = int(rng.integers(4))
+        c0, c1 = rng.uniform(0, 255, 3), rng.uniform(0, 255, 3)
+        yy, xx = (g.astype(np.float32) for g in np.ogrid[0:h, 0:w])
+        if kind == 0:                                # a smooth gradient, any direction (a studio backdrop)
+            t = rng.uniform(0, 2 * np.pi)
+            ramp = (np.cos(t) * xx + np.sin(t) * yy)
+            ramp = (ramp - ramp.min()) / max(1e-6, float(np.ptp(ramp)))
+            bg = c0 * (1 - ramp[..., None]) + c1 * ramp[..., None]
+        elif kind == 1:                              # noise at several scales
+            bg = np.broadcast_to(c0, (h, w, 3)).astype(np.float32).copy()
+            for cell in (64, 16, 4):
+                coarse = rng.normal(0, rng.uniform(5, 40), (h // cell + 2, w // cell + 2, 3)).astype(np.float32)
+                bg += _resize3(coarse, h, w)
+        elif kind == 2:                              # stripes or checks (fabric, tiles, wood)
+            period = rng.uniform(4, 40)
+            t = rng.uniform(0, np.pi)
+            u = (np.cos(t) * xx + np.sin(t) * yy) / period
+            v = (-np.sin(t) * xx + np.cos(t) * yy) / period
+            pattern = np.sin(2 * np.pi * u) if rng.random() < 0.5 else np.sign(np.sin(np.pi * u) * np.sin(np.pi * v))
+            pattern = (pattern + 1) / 2
+            bg = c0 * (1 - pattern[..., None]) + c1 * pattern[..., None]
+        else:                                        # random shapes on a colour (a cluttered scene)
+            img = Image.new("RGB", (w, h), tuple(int(c) for c in c0))
+            draw = ImageDraw.Draw(img)
+            for _ in range(int(rng.integers(3, 15))):
+                x0, y0 = rng.uniform(-0.2, 1.0) * w, rng.uniform(-0.2, 1.0) * h
+                x1, y1 = x0 + rng.uniform(0.05, 0.6) * w, y0 + rng.uniform(0.05, 0.6) * h
+                fill = tuple(int(c) for c in rng.uniform(0, 255, 3))
+                (draw.ellipse if rng.random() < 0.5 else draw.rectangle)((x0, y0, x1, y1), fill=fill)
+            if rng.random() < 0.5:
+                img = img.filter(ImageFilter.GaussianBlur(rng.uniform(0.5, 4)))
+            bg = np.asarray(img, np.float32)
+    bg = np.asarray(bg, np.float32)
+    light = _lighting(rng, h, w)
+    return np.clip(bg * light[..., None], 0, 255)
+
+
+def _resize3(a: np.ndarray, h: int, w: int) -> np.ndarray:
+    return np.stack([np.asarray(Image.fromarray(a[..., c]).resize((w, h), Image.Resampling.BICUBIC))
+                     for c in range(3)], axis=2)
+
+
+def _lighting(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """(h, w) gain: a linear ramp and a vignette of random strength around a random centre."""
+    yy, xx = (g.astype(np.float32) for g in np.ogrid[0:h, 0:w])
+    t = rng.uniform(0, 2 * np.pi)
+    ramp = (np.cos(t) * (xx / w - 0.5) + np.sin(t) * (yy / h - 0.5)) * rng.uniform(0, 0.6)
+    cy, cx = rng.uniform(0.2, 0.8) * h, rng.uniform(0.2, 0.8) * w
+    r2 = ((yy - cy) / h) ** 2 + ((xx - cx) / w) ** 2
+    return (rng.uniform(0.6, 1.3) + ramp) * (1 - rng.uniform(0, 0.8) * np.clip(r2, 0, 1))
+
+
+def object_crop(rgba: np.ndarray) -> np.ndarray:
+    """The render cropped to its alpha's bounding box (ValueError when the render is empty)."""
+    a = rgba[..., 3]
+    rows, cols = np.flatnonzero(a.any(axis=1)), np.flatnonzero(a.any(axis=0))
+    if len(rows) == 0:
+        raise ValueError("the render has no opaque pixel")
+    return rgba[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+
+
+def _jitter(rgb: np.ndarray, rng: np.random.Generator, strength: float) -> np.ndarray:
+    """Brightness, contrast, saturation and per-channel gain jitter of float RGB in [0, 255]."""
+    grey = rgb.mean(axis=-1, keepdims=True)
+    sat = np.float32(rng.uniform(1 - 0.6 * strength, 1 + 0.5 * strength))
+    contrast = np.float32(rng.uniform(1 - 0.4 * strength, 1 + 0.3 * strength))
+    gain = (rng.uniform(1 - 0.35 * strength, 1 + 0.25 * strength)
+            * rng.uniform(1 - 0.1 * strength, 1 + 0.1 * strength, 3)).astype(np.float32)
+    mean = np.float32(grey.mean())
+    # saturation about the grey, contrast about the mean, then a gain per channel
+    return ((grey - mean) * contrast + mean + (rgb - grey) * (sat * contrast)) * gain
+
+
+def photo_composite(rgba: np.ndarray, rng: np.random.Generator, split: str = "train",
+                    style: PhotoStyle = PhotoStyle()) -> Photo:
+    """A photo-like composite of one render (see the module docstring) and its exact mask."""
+    obj = object_crop(np.asarray(rgba))
+    short = int(rng.integers(style.short_side[0], style.short_side[1] + 1))
+    long = int(round(short * rng.uniform(*style.aspect)))
+    h, w = (short, long) if rng.random() < 0.5 else (long, short)
+    target = rng.uniform(*style.scale) * short                  # the object's longest side, pixels
+    f = target / max(obj.shape[:2])
+    oh, ow = max(1, round(obj.shape[0] * f)), max(1, round(obj.shape[1] * f))
+    placed = Image.fromarray(np.ascontiguousarray(obj), "RGBA").convert("RGBa")
+    placed = np.asarray(placed.resize((ow, oh), Image.Resampling.BILINEAR if f > 1 else Image.Resampling.BOX)
+                        .convert("RGBA"), np.float32)
+    # the object's top-left corner: anywhere that keeps at least 1 - cut of its box in the photo
+    my, mx = style.cut * oh, style.cut * ow
+    y0 = int(round(rng.uniform(-my, max(-my, h - oh + my))))
+    x0 = int(round(rng.uniform(-mx, max(-mx, w - ow + mx))))
+    alpha = np.zeros((h, w), np.float32)
+    colour = np.zeros((h, w, 3), np.float32)
+    ys, ye, xs, xe = max(0, y0), min(h, y0 + oh), max(0, x0), min(w, x0 + ow)
+    if ye > ys and xe > xs:
+        part = placed[ys - y0:ye - y0, xs - x0:xe - x0]
+        alpha[ys:ye, xs:xe] = part[..., 3] / 255.0
+        colour[ys:ye, xs:xe] = part[..., :3]
+    scene = background(rng, h, w, split, style.real)
+    if rng.random() < style.shadow:                             # a soft contact shadow under the object
+        scene *= 1 - _shadow(alpha, rng)[..., None]
+    scene = _jitter(scene, rng, 1.0)
+    rgb = scene
+    if ye > ys and xe > xs:                                     # the object, jittered, over the scene
+        a = alpha[ys:ye, xs:xe, None]
+        rgb[ys:ye, xs:xe] = _jitter(colour[ys:ye, xs:xe], rng, 0.7) * a + scene[ys:ye, xs:xe] * (1 - a)
+    if rng.random() < 0.3:
+        rgb = np.asarray(Image.fromarray(np.clip(rgb, 0, 255).astype(np.uint8)).filter(
+            ImageFilter.GaussianBlur(rng.uniform(0.3, 1.2))), np.float32)
+    rgb += rng.standard_normal(rgb.shape, dtype=np.float32) * np.float32(rng.uniform(0, 6))   # sensor noise
+    out = np.clip(np.round(rgb), 0, 255).astype(np.uint8)
+    if rng.random() < style.jpeg:
+        buf = io.BytesIO()
+        Image.fromarray(out).save(buf, "JPEG", quality=int(rng.integers(35, 96)))
+        out = np.asarray(Image.open(io.BytesIO(buf.getvalue())).convert("RGB"))
+    return Photo(out, alpha, mask_box(alpha))
+
+
+def _shadow(alpha: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(H, W) darkening in [0, 1): a blurred ellipse at the object's base, or its blurred silhouette
+    pushed down and to the side."""
+    h, w = alpha.shape
+    box = mask_box(alpha)
+    if box is None:
+        return np.zeros_like(alpha)
+    top, left, bottom, right = box
+    img = Image.new("F", (w, h), 0.0)
+    if rng.random() < 0.6:
+        cx, half = (left + right) / 2, (right - left) / 2 * rng.uniform(0.7, 1.3)
+        tall = max(2.0, (bottom - top) * rng.uniform(0.05, 0.2))
+        ImageDraw.Draw(img).ellipse((cx - half, bottom - tall, cx + half, bottom + tall), fill=1.0)
+    else:
+        dy, dx = int((bottom - top) * rng.uniform(0.02, 0.15)), int((right - left) * rng.uniform(-0.2, 0.2))
+        img = Image.fromarray(np.roll(alpha, (dy, dx), axis=(0, 1)).astype(np.float32), "F")
+    radius = max(1.0, (right - left) * rng.uniform(0.03, 0.15))
+    soft = ndimage.gaussian_filter(np.asarray(img, np.float32), radius)
+    return np.clip(soft, 0, 1) * rng.uniform(0.2, 0.6)
+
+
+def mask_box(mask: np.ndarray, level: float = 0.5) -> tuple[int, int, int, int] | None:
+    """(top, left, bottom, right), exclusive, of the pixels of ``mask`` above ``level``; None if none."""
+    return mask_bounds(mask > level)
+
+
+TEST_STYLE = PhotoStyle(scale=(0.3, 0.95))
+"""The photo-like test split: objects as a user photographs them (their longest side 30-95% of the
+photo's short side; training also sees them down to 15%)."""
+
+
+def photo_split_view(images: np.ndarray, shape_id: str) -> Photo:
+    """The photo-like test view of a shape: a fixed render (by the shape's id) composited with
+    :data:`TEST_PHOTOS` in :data:`TEST_STYLE` with a fixed seed, so every evaluation sees the same
+    photo."""
+    seed = stable_hash("photo-split", shape_id)
+    view = seed % len(images)
+    return photo_composite(images[view], np.random.default_rng(seed), "test", TEST_STYLE)
+
+
+ENCODER_STYLE = PhotoStyle(scale=(0.35, 0.95), short_side=(200, 320))
+"""The composites the image model trains on: objects large enough that the crop keeps detail."""
+
+
+def imperfect_mask(mask: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A copy of an exact mask with the mistakes a foreground network makes: a boundary grown or
+    shrunk by up to 3 pixels, blur, sometimes a blob of residual background beside the object or
+    a bite out of it."""
+    m = np.asarray(mask, np.float32)
+    k = int(rng.integers(-3, 4))
+    if k > 0:
+        m = ndimage.grey_dilation(m, size=(2 * k + 1, 2 * k + 1))
+    elif k < 0:
+        m = ndimage.grey_erosion(m, size=(-2 * k + 1, -2 * k + 1))
+    if rng.random() < 0.5:
+        m = ndimage.gaussian_filter(m, rng.uniform(0.5, 2.0))
+    box = mask_box(mask)
+    if box is not None:
+        top, left, bottom, right = box
+        for value, p in ((1.0, 0.3), (0.0, 0.2)):              # residual background; a missed part
+            if rng.random() < p:
+                h, w = bottom - top, right - left
+                cy = rng.uniform(top - 0.2 * h, bottom + 0.2 * h)
+                cx = rng.uniform(left - 0.2 * w, right + 0.2 * w)
+                ry, rx = rng.uniform(0.05, 0.25) * h + 1, rng.uniform(0.05, 0.25) * w + 1
+                yy, xx = np.ogrid[0:m.shape[0], 0:m.shape[1]]
+                m[((yy - cy) / ry) ** 2 + ((xx - cx) / rx) ** 2 <= 1] = value
+    return np.clip(m, 0, 1)

@@ -1,0 +1,74 @@
+"""The foreground network: which pixels of a photo show the object (background removal).
+
+A compact U-Net (Ronneberger et al. 2015): an encoder of ``levels`` stages, each two 3x3
+convolutions with batch norm and ReLU, halving the resolution between stages (stride-2
+convolution); a decoder that upsamples (bilinear x2), concatenates the encoder's features of the
+same resolution and applies two more convolutions; a 1x1 convolution to one logit per pixel.
+Widths double per stage from ``width``, capped at 8 x ``width``.  Input: (B, 3, S, S) images
+normalised as :func:`model.preprocess.mask_input` makes them (S divisible by 2^(levels-1));
+output: (B, 1, S, S) logits of "object".
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+
+def _block(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(cin, cout, 3, stride, 1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True),
+                         nn.Conv2d(cout, cout, 3, 1, 1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
+
+
+class ForegroundNet(nn.Module):
+    """U-Net to object logits; see the module docstring."""
+
+    def __init__(self, width: int = 8, levels: int = 5):
+        super().__init__()
+        if width < 1 or levels < 2:
+            raise ValueError(f"the foreground network needs width >= 1 and levels >= 2, got {width}, {levels}")
+        widths = [min(width * 2 ** i, width * 8) for i in range(levels)]
+        self.levels = levels
+        self.down = nn.ModuleList([_block(3, widths[0])] +
+                                  [_block(widths[i - 1], widths[i], 2) for i in range(1, levels)])
+        self.up = nn.ModuleList([_block(widths[i + 1] + widths[i], widths[i]) for i in range(levels - 1)])
+        self.head = nn.Conv2d(widths[0], 1, 1)
+        for m in self.modules():
+            if isinstance(m, nn.Conv2d) and m is not self.head:
+                nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu")
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        skips = []
+        x = images
+        for block in self.down:
+            x = block(x)
+            skips.append(x)
+        for i in range(self.levels - 2, -1, -1):
+            x = F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
+            x = self.up[i](torch.cat([x, skips[i]], dim=1))
+        return self.head(x)
+
+
+def mask_losses(logits: torch.Tensor, masks: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Binary cross-entropy plus soft Dice (``total``), and the batch's IoU at 0.5 (``iou``,
+    reported, not trained): ``masks`` (B, 1, S, S) coverage in [0, 1]."""
+    bce = F.binary_cross_entropy_with_logits(logits, masks)
+    p = torch.sigmoid(logits)
+    inter = (p * masks).sum(dim=(1, 2, 3))
+    dice = 1 - (2 * inter + 1) / (p.sum(dim=(1, 2, 3)) + masks.sum(dim=(1, 2, 3)) + 1)
+    with torch.no_grad():
+        hard, truth = logits > 0, masks > 0.5
+        iou = ((hard & truth).sum(dim=(1, 2, 3)).float() + 1e-6) / ((hard | truth).sum(dim=(1, 2, 3)).float() + 1e-6)
+    return {"total": bce + dice.mean(), "bce": bce, "dice": dice.mean(), "iou": iou.mean()}
+
+
+class ForegroundModel(nn.Module):
+    """The training wrapper: ``forward(images, masks)`` returns :func:`mask_losses`."""
+
+    def __init__(self, width: int = 8, levels: int = 5):
+        super().__init__()
+        self.net = ForegroundNet(width, levels)
+
+    def forward(self, images: torch.Tensor, masks: torch.Tensor) -> dict[str, torch.Tensor]:
+        return mask_losses(self.net(images), masks)

@@ -1,0 +1,96 @@
+"""Photo-like composites: the mask is exactly where the object was put, the ranges hold, the test
+split's backgrounds are the held-out photographs only, and the degraded masks stay near the truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from model.data import photos
+from model.data.photos import (TEST_PHOTOS, TRAIN_PHOTOS, PhotoStyle, imperfect_mask, mask_box, object_crop,
+                               photo_composite, photo_split_view, real_photo)
+
+
+def render(h: int = 120, w: int = 90) -> np.ndarray:
+    """A synthetic RGBA render: an opaque red h x w rectangle."""
+    rgba = np.zeros((137, 137, 4), np.uint8)
+    rgba[10:10 + h, 20:20 + w] = (200, 30, 30, 255)
+    return rgba
+
+
+def test_photo_has_no_alpha_and_the_mask_is_the_placed_object():
+    rgba = render()
+    for seed in range(20):
+        p = photo_composite(rgba, np.random.default_rng(seed), style=PhotoStyle(cut=0.0))
+        assert p.rgb.dtype == np.uint8 and p.rgb.ndim == 3 and p.rgb.shape[2] == 3
+        assert p.mask.shape == p.rgb.shape[:2]
+        assert 0 <= p.mask.min() and p.mask.max() <= 1
+        top, left, bottom, right = p.box
+        short = min(p.rgb.shape[:2])
+        longest = max(bottom - top, right - left)
+        # the object's longest side is drawn from 15-95% of the short side (cut=0: wholly inside)
+        assert 0.15 * short - 2 <= longest <= 0.95 * short + 2
+        # its area is the rectangle's at the drawn scale: the mask covers exactly the object
+        scale = longest / 120
+        assert abs(p.mask.sum() - 120 * 90 * scale ** 2) <= 0.06 * 120 * 90 * scale ** 2 + 2 * longest
+
+
+def test_the_object_keeps_its_colour_under_the_mask_and_the_scene_differs():
+    rgba = render()
+    p = photo_composite(rgba, np.random.default_rng(3), style=PhotoStyle(jpeg=0.0, cut=0.0))
+    inside = p.rgb[p.mask > 0.99].astype(float)
+    # red dominates inside the object despite jitter and noise; the scene is not the object's colour
+    assert (inside[:, 0] - inside[:, 1:].max(1)).mean() > 60
+    outside = p.rgb[p.mask < 0.01].astype(float)
+    assert np.abs(outside.mean(0) - inside.mean(0)).max() > 10
+
+
+def test_same_seed_same_photo_and_the_split_view_is_fixed():
+    rgba = render()
+    a = photo_composite(rgba, np.random.default_rng(7))
+    b = photo_composite(rgba, np.random.default_rng(7))
+    assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.mask, b.mask)
+    views = np.stack([render(), render(60, 100)])
+    assert np.array_equal(photo_split_view(views, "x1").rgb, photo_split_view(views, "x1").rgb)
+    assert not np.array_equal(photo_split_view(views, "x1").rgb, photo_split_view(views, "x2").rgb)
+
+
+def test_the_test_split_uses_only_held_out_photographs(monkeypatch):
+    assert not set(TRAIN_PHOTOS) & set(TEST_PHOTOS)
+    used = []
+    monkeypatch.setattr(photos, "real_photo", lambda name: used.append(name) or np.zeros((300, 400, 3), np.uint8))
+    for seed in range(40):
+        photo_composite(render(), np.random.default_rng(seed), "test", PhotoStyle(real=1.0))
+    assert used and set(used) <= set(TEST_PHOTOS)
+    used.clear()
+    for seed in range(40):
+        photo_composite(render(), np.random.default_rng(seed), "train", PhotoStyle(real=1.0))
+    assert used and set(used) <= set(TRAIN_PHOTOS)
+
+
+@pytest.mark.parametrize("name", TRAIN_PHOTOS + TEST_PHOTOS)
+def test_every_photograph_loads_offline(name):
+    img = real_photo(name)
+    assert img.dtype == np.uint8 and img.shape[2] == 3 and min(img.shape[:2]) >= 150
+
+
+def test_imperfect_masks_stay_near_the_truth():
+    truth = np.zeros((200, 200), np.float32)
+    truth[50:150, 60:140] = 1
+    ious = []
+    for seed in range(30):
+        m = imperfect_mask(truth, np.random.default_rng(seed))
+        assert m.shape == truth.shape and 0 <= m.min() and m.max() <= 1
+        a, b = m > 0.5, truth > 0.5
+        ious.append((a & b).sum() / (a | b).sum())
+    # mistakes of a few pixels and a blob now and then: imperfect, never unrelated
+    assert min(ious) > 0.6 and np.mean(ious) < 0.99
+
+
+def test_object_crop_and_box():
+    rgba = render()
+    assert object_crop(rgba).shape[:2] == (120, 90)
+    assert mask_box(rgba[..., 3] / 255.0) == (10, 20, 130, 110)
+    assert mask_box(np.zeros((5, 5))) is None
+    with pytest.raises(ValueError):
+        object_crop(np.zeros((8, 8, 4), np.uint8))

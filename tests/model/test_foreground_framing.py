@@ -1,0 +1,168 @@
+"""Background removal in the shared preprocessing: which mask is used, specks, no object, the crop
+and the framing ratio, and the foreground network's input and output mapping."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from model.preprocess import (ImageError, ImageSpec, MaskSpec, NoObjectError, clean_mask, frame_object,
+                              mask_input, mask_output, resize_mask)
+
+SPEC = ImageSpec(size=64)
+
+
+OBJECT = (20, 40, 160)
+
+
+def photo(h=120, w=200, boxes=((30, 120, 90, 170),)) -> tuple[np.ndarray, np.ndarray]:
+    """An opaque noisy bright scene with dark blue objects at ``boxes`` (off-centre), and their mask."""
+    rng = np.random.default_rng(0)
+    rgb = (rng.uniform(120, 255, (h, w, 3))).astype(np.uint8)
+    mask = np.zeros((h, w), np.float32)
+    for t, l, b, r in boxes:
+        rgb[t:b, l:r] = OBJECT
+        mask[t:b, l:r] = 1
+    return rgb, mask
+
+
+class Net:
+    """A stand-in foreground network: the object's colour, on whatever image (or crop) it is given."""
+
+    def __init__(self):
+        self.calls = []
+
+    def __call__(self, rgb):
+        assert rgb.ndim == 3 and rgb.shape[2] == 3
+        self.calls.append(rgb.shape[:2])
+        return (np.abs(rgb.astype(np.int32) - OBJECT).max(axis=2) < 30).astype(np.float32)
+
+
+def extent(x: np.ndarray, spec: ImageSpec = SPEC) -> tuple[int, int]:
+    """Rows and columns of the encoder input that are not the white background."""
+    rgb = x.transpose(1, 2, 0) * np.asarray(spec.std) + np.asarray(spec.mean)
+    obj = (rgb < 0.9).any(axis=2)
+    return int(obj.any(1).sum()), int(obj.any(0).sum())
+
+
+def test_an_opaque_photo_is_cut_out_with_the_networks_mask_and_framed():
+    rgb, mask = photo()
+    net = Net()
+    f = frame_object(rgb, SPEC, net)
+    # the object's square (84 px) is under half the photo: a second pass sees it at full resolution
+    assert net.calls == [(120, 200), (84, 84)] and f.mask_source == "network"
+    assert f.box == (30, 120, 90, 170) and np.array_equal(f.mask > 127, mask > 0.5)
+    assert f.mask.shape == rgb.shape[:2] and f.mask.dtype == np.uint8
+    # the object, 60 x 50, fills the square's side in its longest direction at the spec's ratio (0.9)
+    rows, cols = extent(f.image)
+    assert abs(rows - 0.9 * 64) <= 2 and abs(cols - 0.9 * 64 * 50 / 60) <= 2
+    # the scene is gone: everything outside the object is the encoder's white
+    rgb_in = f.image.transpose(1, 2, 0) * 0.25 + 0.5
+    assert (rgb_in[0, 0] > 0.97).all() and (rgb_in[-1, -1] > 0.97).all()
+
+
+def test_without_the_network_the_scene_stays():
+    rgb, mask = photo()
+    for f in (frame_object(rgb, SPEC, None), frame_object(rgb, SPEC, Net(), "false")):
+        assert f.mask_source == "none" and f.mask is None
+        rgb_in = f.image.transpose(1, 2, 0) * 0.25 + 0.5
+        assert (rgb_in < 0.97).any(axis=2).mean() > 0.5       # the noisy scene fills the input
+
+
+def test_alpha_is_used_and_the_network_is_not_run():
+    rgb, mask = photo()
+    rgba = np.concatenate([rgb, (mask * 255).astype(np.uint8)[..., None]], axis=2)
+    net = Net()
+    for mode in ("auto", "true", "false"):
+        f = frame_object(rgba, SPEC, net, mode)
+        assert f.mask_source == "alpha" and f.box == (30, 120, 90, 170)
+    assert net.calls == []
+
+
+def test_foreground_ratio_sets_the_objects_share_of_the_square():
+    rgb, mask = photo()
+    for ratio in (0.5, 0.85, 1.0):
+        rows, _ = extent(frame_object(rgb, SPEC, Net(), foreground_ratio=ratio).image)
+        assert abs(rows - ratio * 64) <= 2
+    with pytest.raises(ImageError, match="foreground_ratio"):
+        frame_object(rgb, SPEC, Net(), foreground_ratio=0.01)
+
+
+def test_no_object_and_bad_requests_are_clear_errors():
+    empty, _ = photo(boxes=())
+    with pytest.raises(NoObjectError, match="no object"):
+        frame_object(empty, SPEC, Net())
+    tiny, _ = photo(boxes=((5, 5, 7, 7),))             # 4 pixels of 24,000: below min_area
+    with pytest.raises(NoObjectError, match="covers"):
+        frame_object(tiny, SPEC, Net())
+    transparent = np.zeros((20, 20, 4), np.uint8)
+    with pytest.raises(NoObjectError, match="transparent"):
+        frame_object(transparent, SPEC, Net())
+    rgb, _ = photo()
+    with pytest.raises(ImageError, match="needs a foreground network"):
+        frame_object(rgb, SPEC, None, "true")
+    with pytest.raises(ImageError, match="auto, true, false"):
+        frame_object(rgb, SPEC, Net(), "yes")
+
+
+def test_specks_are_removed_and_do_not_widen_the_crop():
+    specked, mask = photo(boxes=((30, 120, 90, 170), (2, 2, 5, 5)))   # 9 px against the object's 3,000
+    assert frame_object(specked, SPEC, Net()).box == (30, 120, 90, 170)
+    cleaned = clean_mask(Net()(specked), MaskSpec())
+    assert cleaned[3, 3] == 0 and cleaned[30:90, 120:170].min() == 1
+    two, _ = photo(boxes=((30, 120, 90, 170), (30, 10, 90, 60)))     # a second object as large: both kept
+    assert frame_object(two, SPEC, Net()).box == (30, 10, 90, 170)
+
+
+def test_an_object_touching_the_border_and_one_filling_the_photo():
+    edge, _ = photo(boxes=((0, 150, 70, 200),))
+    f = frame_object(edge, SPEC, Net())
+    assert f.box == (0, 150, 70, 200) and np.isfinite(f.image).all()
+    full, _ = photo(boxes=((0, 0, 120, 200),))
+    net = Net()
+    f = frame_object(full, SPEC, net)
+    assert f.mask_source == "network" and f.box == (0, 0, 120, 200) and f.mask.min() == 255
+    assert net.calls == [(120, 200)]                   # a large object: no second pass
+
+
+def test_a_small_object_is_segmented_again_at_full_resolution():
+    rgb, mask = photo(h=400, w=600, boxes=((280, 450, 340, 540),))
+    calls = []
+
+    def coarse(img):                                   # a network that sees a 16 px grid only
+        calls.append(img.shape[:2])
+        small = resize_mask(Net()(img), 16, 16)
+        return resize_mask(small, *img.shape[:2])
+
+    f = frame_object(rgb, SPEC, coarse)
+    assert calls[0] == (400, 600) and calls[1][0] == calls[1][1] < 150
+    got, truth = f.mask > 127, mask > 0.5
+    iou = (got & truth).sum() / (got | truth).sum()
+    once = resize_mask(resize_mask(mask, 16, 16), 400, 600) > 0.5
+    assert iou > 0.85 > (once & truth).sum() / (once | truth).sum()
+
+
+def test_mask_input_and_output_map_between_the_photo_and_the_network():
+    spec = MaskSpec(size=32)
+    rgb = np.zeros((50, 80, 3), np.uint8)
+    rgb[:, 40:] = 255
+    x = mask_input(rgb, spec)
+    assert x.shape == (3, 32, 32) and x.dtype == np.float32
+    assert x[0, :, :15].max() == pytest.approx(-2.0) and x[0, :, 17:].min() == pytest.approx(2.0)
+    logits = np.full((32, 32), -20.0, np.float32)
+    logits[:, 16:] = 20.0
+    p = mask_output(logits, 50, 80)
+    assert p.shape == (50, 80) and p[:, :38].max() < 0.01 and p[:, 42:].min() > 0.99
+    assert resize_mask(np.ones((10, 10)), 3, 4).shape == (3, 4)
+
+
+def test_when_the_second_look_finds_nothing_the_first_stands():
+    rgb, mask = photo(h=400, w=600, boxes=((280, 450, 340, 540),))
+    calls = []
+
+    def forgetful(img):                                # finds the object in the photo, not in its square
+        calls.append(img.shape[:2])
+        return Net()(img) if len(calls) == 1 else np.zeros(img.shape[:2], np.float32)
+
+    f = frame_object(rgb, SPEC, forgetful)
+    assert len(calls) == 2 and f.box == (280, 450, 340, 540)

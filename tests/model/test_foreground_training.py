@@ -1,0 +1,133 @@
+"""The foreground network trained, resumed and exported into an image bundle; an image model
+retrained for photos from an image teacher; the photo-like evaluation."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from model.networks.foreground import ForegroundNet, mask_losses
+from model.preprocess import prepare_image
+from model.train.loop import Trainer
+
+from .test_train import config, trains_and_resumes_identically
+
+FG = dict(task="foreground", arch="unet", encoder_width=4, image_size=32)
+IMAGE = dict(task="image", arch="aocnn", encoder="lenet", encoder_width=4, image_size=32)
+
+
+def test_the_network_is_compact_and_maps_images_to_logits():
+    net = ForegroundNet()
+    assert sum(p.numel() for p in net.parameters()) <= 3_000_000
+    assert net(torch.zeros(2, 3, 64, 48)).shape == (2, 1, 64, 48)
+    with pytest.raises(ValueError):
+        ForegroundNet(width=0)
+
+
+def test_the_losses_reward_the_right_mask():
+    truth = torch.zeros(1, 1, 8, 8)
+    truth[..., 2:6, 2:6] = 1
+    right, wrong = mask_losses(truth * 20 - 10, truth), mask_losses(10 - truth * 20, truth)
+    assert right["iou"] == pytest.approx(1.0) and wrong["iou"] == pytest.approx(0.0, abs=1e-6)
+    assert right["total"] < 0.01 < 1.5 < wrong["total"]
+
+
+def test_foreground_training_resumes_to_identical_weights_and_reports_iou(tiny_data, tmp_path):
+    _, summary = trains_and_resumes_identically(tiny_data, tmp_path, **FG)
+    assert 0 <= summary["val"]["iou"] <= 1 and np.isfinite(summary["val"]["total"])
+    t = Trainer(config(tiny_data, tmp_path / "a", **FG))
+    idx = t.batch_indices(0)
+    images, masks = t.task.inputs(t.cfg, t.train_set, idx, np.random.default_rng(0))
+    assert images.shape == (len(idx), 3, 32, 32) and masks.shape == (len(idx), 1, 32, 32)
+    assert 0 < float(masks.mean()) < 1                  # an object on a background, not all or nothing
+    with pytest.raises(ValueError, match="multiple of 16"):
+        Trainer(config(tiny_data, tmp_path / "bad", **{**FG, "image_size": 40}))
+
+
+@pytest.fixture(scope="module")
+def runs(tiny_data, tmp_path_factory):
+    root = tmp_path_factory.mktemp("fg_runs")
+    Trainer(config(tiny_data, root / "fg", iters=3, **FG)).run()
+    Trainer(config(tiny_data, root / "img", iters=3, **IMAGE)).run()
+    return root
+
+
+def test_an_image_model_retrained_for_photos_starts_from_its_teacher(tiny_data, runs, tmp_path):
+    kw = dict(IMAGE, iters=4, teacher=str(runs / "img"), photo_share=0.5, foreground_ratio=0.85)
+    student = Trainer(config(tiny_data, tmp_path / "s", **kw))
+    teacher = Trainer(config(tiny_data, runs / "img", iters=3, **IMAGE)).model.eval()
+    s0, t0 = student.model.state_dict(), teacher.state_dict()
+    assert all(torch.equal(s0[k], t0[k]) for k in t0)                 # starts as the teacher
+    # the targets: the teacher's code of every view, on the plain background at its own framing
+    codes = student.train_set.latents
+    first = student.train_set.samples[0]
+    assert codes.shape == (len(student.train_set), len(first.images), 32)
+    with torch.no_grad():
+        want = teacher.encoder(torch.from_numpy(np.stack([prepare_image(v, teacher_spec()) for v in first.images])))
+    assert torch.allclose(codes[0], want, atol=1e-5)
+    assert student.task.spec(student.cfg).foreground_ratio == pytest.approx(0.85)
+    student.run()
+    dec_s, dec_t = student.model.decoder.state_dict(), teacher.decoder.state_dict()
+    assert all(torch.equal(dec_s[k], dec_t[k]) for k in dec_t)
+    assert any(not torch.equal(student.model.encoder.state_dict()[k], teacher.encoder.state_dict()[k])
+               for k in teacher.encoder.state_dict() if teacher.encoder.state_dict()[k].is_floating_point())
+    with pytest.raises(ValueError, match="image_size"):
+        Trainer(config(tiny_data, tmp_path / "bad", **{**kw, "image_size": 48}))
+
+
+def teacher_spec():
+    from model.preprocess import ImageSpec
+    return ImageSpec(size=32)
+
+
+def test_the_bundle_carries_the_foreground_network_and_the_photo_evaluation_uses_it(tiny_data, runs, tmp_path):
+    from export.bundle import BundleError, load_bundle
+    from export.exporter import export
+    from export.runtime import Runtime
+    from model.evaluate import evaluate
+    from model.checkpoint import load_model
+
+    meta = export(runs / "img", tmp_path / "b", foreground=runs / "fg")
+    assert "foreground" in meta["graphs"] and meta["input"]["foreground"]["size"] == 32
+    check = meta["export"]["self_check"]
+    assert check["foreground_logit_max_abs_diff"] < 1e-4 and check["foreground_pixel_agreement"] == 1.0
+    rt = Runtime(load_bundle(tmp_path / "b"), threads=1)
+    rgb = np.random.default_rng(0).integers(0, 256, (40, 70, 3), dtype=np.uint8)
+    p = rt.segment(rgb)
+    assert p.shape == (40, 70) and 0 <= p.min() and p.max() <= 1
+    from model.preprocess import MaskSpec, mask_input, mask_output
+    with torch.no_grad():
+        logits = load_model(runs / "fg").model.net(torch.from_numpy(mask_input(rgb, MaskSpec(size=32))[None]))
+    assert np.abs(mask_output(logits.numpy()[0, 0], 40, 70) - p).max() < 1e-4
+    with pytest.raises(BundleError, match="foreground network"):
+        export(runs / "img", tmp_path / "c", foreground=runs / "img")
+    res = evaluate(str(runs / "img"), str(tiny_data), "train", resolution=16, limit=3, bundle=str(tmp_path / "b"),
+                   photos=True)
+    assert res["input"]["foreground_network"] and sum(res["input"]["mask_sources"].values()) == 3
+    for r in res["per_shape"]:
+        assert r["mask_source"] in ("network", "missed")
+        assert 0 <= r["mask_iou"] <= 1 and len(r["photo_size"]) == 2
+    plain = evaluate(str(runs / "img"), str(tiny_data), "train", resolution=16, limit=3, photos=True)
+    assert plain["input"] == {"kind": "photos", "remove_background": "auto", "foreground_network": False,
+                              "mask_sources": {"none": 3}}
+    json.dumps(res)
+
+
+def test_photo_inputs_are_framed_objects_for_any_draw():
+    """The image model's photo samples: the object cut out again with a degraded mask and framed
+    (every draw, small objects and objects at the border included), not the scene."""
+    from model.preprocess import ImageSpec
+    from model.train.images import photo_input
+
+    rgba = np.zeros((137, 137, 4), np.uint8)
+    rgba[20:120, 50:90] = (30, 30, 200, 255)
+    spec = ImageSpec(size=32)
+    for seed in range(40):
+        x = photo_input(rgba, spec, np.random.default_rng(seed))
+        assert x.shape == (3, 32, 32) and np.isfinite(x).all()
+        rgb = x.transpose(1, 2, 0) * 0.25 + 0.5
+        blue = (rgb[..., 2] - rgb[..., 0]) > 0.15
+        assert blue[12:20, 14:18].mean() > 0.5          # the object is in the middle of the input
