@@ -48,7 +48,8 @@ def create_app(settings: Settings | None = None, engine: Engine | None = None) -
                            allow_headers=["Authorization", "Content-Type"],
                            expose_headers=["Content-Disposition", "X-Model-Name", "X-Model-Version",
                                            "X-Octree-Nodes", "X-Octree-Leaves", "X-Surface", "X-Mesh-Faces",
-                                           "X-Mesh-Closed", "Server-Timing"])
+                                           "X-Mesh-Closed", "X-Mask", "X-Crop-Box", "X-Foreground-Ratio",
+                                           "Server-Timing"])
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
 
     @app.middleware("http")

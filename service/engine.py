@@ -4,15 +4,18 @@ tasks, the dynamic batchers (:mod:`service.batching`)."""
 
 from __future__ import annotations
 
+import io
 import logging
 import time
 from dataclasses import dataclass
 
 import numpy as np
+from PIL import Image
 
 from export.bundle import Bundle, BundleError, load_bundle
 from export.runtime import Runtime
 from model.decode import DECODED_NORMALIZATION
+from model.preprocess import Framed, MaskSpec
 from model.surface import DEFAULT_SURFACE, SURFACES, surface_mesh
 from model.octree import PointCloud, build_octree, scan_octree
 from model.octree.geometry import up_rotations
@@ -35,7 +38,8 @@ class StartupError(RuntimeError):
 
 @dataclass
 class Request:
-    """One request's input and output choices, as the batch functions take them."""
+    """One request's input and output choices, as the batch functions take them; ``framed``: a
+    photo's framing (mask source, crop box, mask), set by :meth:`Engine.frame_image`."""
 
     data: bytes
     fmt: str
@@ -45,6 +49,9 @@ class Request:
     filename: str | None = None
     surface: str = DEFAULT_SURFACE
     faces: int | None = None
+    remove_background: str = "auto"
+    foreground_ratio: float | None = None
+    framed: Framed | None = None
 
 
 @dataclass
@@ -127,14 +134,43 @@ class Engine:
         return depth
 
     # -- the blocking work of each endpoint (runs in the limiter's threads) -----------------
+    def frame_image(self, item: Request) -> Framed:
+        """A photo decoded, its object found (alpha, or the foreground network timed as the ``mask``
+        stage) and framed for the encoder; kept on ``item.framed``."""
+        served = self.model("image-to-shape")
+        b = served.bundle
+
+        def segment(rgb: np.ndarray) -> np.ndarray:
+            with item.timer("mask"):
+                return served.runtime.segment(rgb)
+
+        with item.timer("decode_input"):
+            item.framed = image_input(item.data, b.image_spec(), self.settings.max_image_pixels,
+                                      segment if served.runtime.has_foreground else None, item.remove_background,
+                                      item.foreground_ratio, b.mask_spec() or MaskSpec())
+        return item.framed
+
+    def mask_png(self, item: Request) -> bytes:
+        """The mask a photo's framing used, as an 8-bit greyscale PNG of the photo's size (debug=mask);
+        422 ``no_mask`` for an opaque photo framed without one."""
+        framed = self.frame_image(item)
+        if framed.mask is None:
+            if item.remove_background == "false":
+                raise APIError(422, "no_mask", "there is no mask: the image is opaque and remove_background=false "
+                               "keeps its background", "drop remove_background=false to see the foreground "
+                               "network's mask, or send a PNG with transparency around the object")
+            raise APIError(422, "no_mask", "there is no mask: the image is opaque and this model has no foreground "
+                           "network to find the object", "send a PNG with transparency around the object")
+        buf = io.BytesIO()
+        Image.fromarray(np.ascontiguousarray(framed.mask, np.uint8)).save(buf, format="PNG")
+        return buf.getvalue()
+
     def image_batch(self, items: list[Request]) -> list[MeshFile | APIError]:
         """Photos -> meshes, encoded and decoded as one batch; a bad input fails only its own item."""
         served = self.model("image-to-shape")
-        spec = served.bundle.image_spec()
 
         def prepare(item: Request):
-            with item.timer("decode_input"):
-                return image_input(item.data, spec, self.settings.max_image_pixels)
+            return self.frame_image(item).image
 
         def encode(inputs):
             return served.runtime.encode_image(np.stack(inputs))

@@ -13,12 +13,10 @@ import tempfile
 import zipfile
 from pathlib import Path
 
-import numpy as np
-
 from model.formats import IMAGE_FORMATS, MESH_FORMATS, POINT_FORMATS, identify, not_taken
 from model.octree import OctreeInputError
 from model.octree.inputs import HEADER_BYTES, LoadedInput, load_input, ply_vertex_count
-from model.preprocess import ImageError, ImageSpec, decode_image, prepare_image
+from model.preprocess import Framed, ImageError, ImageSpec, MaskSpec, NoObjectError, decode_image, frame_object
 
 from .errors import APIError
 
@@ -27,14 +25,24 @@ SHAPES_TAKEN = f"this endpoint takes a mesh ({MESH_FORMATS}) or a point cloud ({
 IMAGES_TAKEN = f"this endpoint takes an image ({IMAGE_FORMATS})"
 
 
-def image_input(data: bytes, spec: ImageSpec, max_pixels: int) -> np.ndarray:
-    """Encoder input (3, S, S) of an uploaded image, or a 4xx (415 naming what else it is)."""
+def image_input(data: bytes, spec: ImageSpec, max_pixels: int, segment=None, remove_background: str = "auto",
+                foreground_ratio: float | None = None, mask_spec: MaskSpec = MaskSpec()) -> Framed:
+    """An uploaded image decoded and framed for the encoder (:func:`model.preprocess.frame_object`:
+    ``segment`` is the foreground network, None without one), or a 4xx (415 naming what else it is,
+    422 when it shows no object or asks for a background removal the model cannot do)."""
     if not data:
         raise APIError(400, "empty_input", "the 'image' field is empty", "upload the image file's bytes")
     try:
-        return prepare_image(decode_image(data, max_pixels), spec)
+        return frame_object(decode_image(data, max_pixels), spec, segment, remove_background, foreground_ratio,
+                            mask_spec)
+    except NoObjectError as exc:
+        raise APIError(422, "no_object", str(exc), "send a photo where one object stands out from its "
+                       "background, or a PNG with transparency around the object") from None
     except ImageError as exc:
         message = str(exc)
+        if message.startswith("remove_background=true needs a foreground network"):
+            raise APIError(422, "no_foreground_network", message, "send an image with transparency around the "
+                           "object, or use remove_background=auto") from None
         if "more than the limit" in message:
             raise APIError(413, "image_too_large", message, "send a smaller image (downscale it)") from None
         if "not an image" in message:

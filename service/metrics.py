@@ -7,7 +7,7 @@ from contextlib import contextmanager
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 
-STAGES = ("decode_input", "octree_build", "encoder", "decoder", "surface", "mesh_encode")
+STAGES = ("decode_input", "mask", "octree_build", "encoder", "decoder", "surface", "mesh_encode")
 LATENCY_BUCKETS = (0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60)
 
 
@@ -28,18 +28,28 @@ class Metrics:
 
 
 class StageTimer:
-    """Seconds per stage of one request (reported to metrics and in the Server-Timing header)."""
+    """Seconds per stage of one request (reported to metrics and in the Server-Timing header).
+
+    Stages are disjoint: a stage timed inside another (the foreground network's ``mask`` inside
+    ``decode_input``) is not counted in the outer one."""
 
     def __init__(self, metrics: Metrics):
         self.metrics, self.seconds = metrics, {}
+        self.inner: list[float] = []            # per open stage, the seconds of the stages inside it
 
     @contextmanager
     def __call__(self, stage: str):
         t = time.perf_counter()
+        self.seconds.setdefault(stage, 0.0)     # the header lists stages in the order they start
+        self.inner.append(0.0)
         try:
             yield
         finally:
-            self.add(stage, time.perf_counter() - t)
+            total = time.perf_counter() - t
+            nested = self.inner.pop()
+            if self.inner:
+                self.inner[-1] += total
+            self.add(stage, total - nested)
 
     def add(self, stage: str, seconds: float) -> None:
         self.seconds[stage] = self.seconds.get(stage, 0.0) + seconds

@@ -8,6 +8,8 @@ from pydantic import BaseModel, Field
 
 Format = Literal["glb", "gltf", "ply", "obj"]
 Surface = Literal["watertight", "patches"]
+RemoveBackground = Literal["auto", "true", "false"]       # model.preprocess.REMOVE_BACKGROUND
+Debug = Literal["mask"]
 
 
 class GraphInfo(BaseModel):
@@ -27,6 +29,12 @@ class ModelInfo(BaseModel):
     categories: list[str]
     graphs: dict[str, GraphInfo]
     evaluation: dict | None = Field(None, description="the checkpoint's test figures")
+    foreground_network: bool | None = Field(None, description="image-to-shape: whether the model has a foreground "
+                                            "network, which removes the background of opaque photos "
+                                            "(remove_background=auto|true); null for other tasks")
+    foreground_ratio: float | None = Field(None, description="image-to-shape: the default share of the encoder's "
+                                           "square the object's longest side fills; null for other tasks",
+                                           examples=[0.9])
 
 
 class ModelsResponse(BaseModel):

@@ -16,6 +16,7 @@ import time
 import urllib.request
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -93,8 +94,14 @@ def test_curl_examples_answer_with_what_they_promise(command, scratch, service):
     target = re.search(r"-o (\S+)", command)
     if target:
         data = (scratch / target.group(1)).read_bytes()
-        assert len(data) > 1000 and not data.startswith(b'{"error"'), data[:300]
-        assert data[:4] == b"glTF" or data.startswith(b"# adaptive-ocnn"), data[:40]
+        assert not data.startswith(b'{"error"'), data[:300]
+        if "debug=mask" in command:                  # the object's mask: a greyscale PNG of the photo's size
+            from PIL import Image
+            photo = Image.open(scratch / re.search(r"image=@(\S+)", command).group(1))
+            mask = Image.open(scratch / target.group(1))
+            assert mask.mode == "L" and mask.size == photo.size and 0 < np.asarray(mask).mean() < 200
+        else:
+            assert len(data) > 1000 and (data[:4] == b"glTF" or data.startswith(b"# adaptive-ocnn")), data[:40]
     elif "/metrics" in command:
         assert b"aocnn_requests_total" in run.stdout
     else:

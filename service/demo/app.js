@@ -104,6 +104,7 @@ function requestUrl(endpoint, format) {
   if (endpoint !== 'classify') {
     if ($('color').checked) q.set('color_by_depth', 'true');
     q.set('surface', $('surface').value);
+    if (endpoint === 'image-to-shape') q.set('remove_background', $('remove-background').value);
     if (format) q.set('format', format);
   }
   const s = q.toString();
@@ -160,6 +161,8 @@ function showHeaders(response) {
   $('s-leaves').textContent = h('X-Octree-Leaves');
   const closed = response.headers.get('X-Mesh-Closed');
   $('s-surface').textContent = `${h('X-Surface')}${closed === 'true' ? ' (closed)' : closed === 'false' ? ' (open)' : ''}`;
+  const box = response.headers.get('X-Crop-Box');
+  $('s-mask').textContent = `${h('X-Mask')}${box ? ` (${box})` : ''}`;
   $('s-timing').textContent = h('Server-Timing');
 }
 

@@ -16,8 +16,11 @@ async def models(eng: Engine = Depends(engine)) -> ModelsResponse:
     out = []
     for served in eng.models.values():
         b = served.bundle
+        image = b.task == "image-to-shape"
         out.append(ModelInfo(task=b.task, name=b.name, version=b.version, depth=b.octree.depth,
                              min_depth=b.octree.adaptive_depth, input=b.input, categories=b.categories,
                              graphs={n: GraphInfo(file=g.file, sha256=g.sha256) for n, g in b.graphs.items()},
-                             evaluation=b.meta.get("evaluation")))
+                             evaluation=b.meta.get("evaluation"),
+                             foreground_network=served.runtime.has_foreground if image else None,
+                             foreground_ratio=round(b.image_spec().foreground_ratio, 6) if image else None))
     return ModelsResponse(models=out)

@@ -8,6 +8,7 @@ from fastapi import APIRouter, Depends, File, Header, Query, UploadFile
 from fastapi.responses import Response
 
 from model.octree.build import MAX_BUILD_DEPTH
+from model.preprocess import Framed
 from model.surface import DEFAULT_SURFACE
 
 from ..deps import engine, require_key
@@ -15,13 +16,27 @@ from ..engine import Engine, Request
 from ..errors import ERROR_RESPONSES, APIError
 from ..meshes import FORMATS, MeshFile, choose_format
 from ..metrics import StageTimer
-from ..schemas import ClassifyResponse, ClassScore, Format, Surface
+from ..schemas import ClassifyResponse, ClassScore, Debug, Format, RemoveBackground, Surface
 
 router = APIRouter(prefix="/v1", tags=["shapes"], dependencies=[Depends(require_key)])
 
 MESH_RESPONSE = {200: {"description": "the mesh (headers: X-Surface, X-Mesh-Faces, X-Mesh-Closed)",
                        "content": {m: {} for m in FORMATS.values()}},
                  **ERROR_RESPONSES}
+FRAMING_HEADERS = {
+    "X-Mask": "where the object's mask came from: alpha (the image's transparency), network (the foreground "
+              "network cut the object out of an opaque photo) or none (no mask: an opaque image cropped by its "
+              "border colour)",
+    "X-Crop-Box": "top,left,bottom,right (exclusive) of the object's box in the uploaded image's pixels; absent "
+                  "when the whole image was used",
+    "X-Foreground-Ratio": "the share of the encoder's square the object's longest side filled (3 decimals)"}
+IMAGE_RESPONSE = {200: {"description": "the mesh (headers: X-Surface, X-Mesh-Faces, X-Mesh-Closed, X-Mask, "
+                        "X-Crop-Box, X-Foreground-Ratio); with debug=mask, the mask as an 8-bit greyscale PNG of "
+                        "the image's size (the same X-Mask, X-Crop-Box and X-Foreground-Ratio)",
+                        "content": {**{m: {} for m in FORMATS.values()}, "image/png": {}},
+                        "headers": {k: {"description": d, "schema": {"type": "string"}}
+                                    for k, d in FRAMING_HEADERS.items()}},
+                  **ERROR_RESPONSES}
 FORMAT_Q = Query(None, description="glb (default), gltf, ply or obj; an Accept header may choose too")
 DEPTH_Q = Query(None, ge=1, le=MAX_BUILD_DEPTH, description="decode only down to this depth (a coarser, faster level "
                 "of detail; the model's range is in GET /v1/models: min_depth..depth)")
@@ -31,9 +46,19 @@ FACES_Q = Query(None, ge=4, le=10_000_000, description="a face budget for the wa
 SURFACE_Q = Query(DEFAULT_SURFACE, description="watertight: a closed, consistently oriented 2-manifold mesh (it "
                   "can be 3D-printed, voxelised or used as a collider); patches: the paper's output, one planar "
                   "patch per octree leaf, with cracks between them")
+REMOVE_BACKGROUND_Q = Query("auto", description="auto: an image with transparency uses its alpha, an opaque photo "
+                            "the foreground network's mask (when the model has one, GET /v1/models: "
+                            "foreground_network), else its border colour; true: the same, but an opaque photo is "
+                            "refused (422 no_foreground_network) when the model has no foreground network; false: "
+                            "never run the network (an opaque image is cropped by its border colour)")
+FOREGROUND_RATIO_Q = Query(None, ge=0.3, le=1.0, description="the share of the encoder's square the object's longest "
+                           "side fills (default the model's, GET /v1/models: foreground_ratio)")
+DEBUG_Q = Query(None, description="mask: answer with the mask the framing used (an 8-bit greyscale PNG of the "
+                "image's size, 255 = object) instead of the mesh; 422 no_mask when there is none")
 
 
-def mesh_response(mesh: MeshFile, name: str, timer: StageTimer, model: str = "", version: str = "") -> Response:
+def mesh_response(mesh: MeshFile, name: str, timer: StageTimer, model: str = "", version: str = "",
+                  extra: dict[str, str] | None = None) -> Response:
     headers = {"Content-Disposition": f'attachment; filename="{name}.{mesh.extension}"',
                "X-Octree-Nodes": str(mesh.nodes),
                "X-Octree-Leaves": ",".join(f"{d}:{n}" for d, n in mesh.leaves.items()),
@@ -41,7 +66,15 @@ def mesh_response(mesh: MeshFile, name: str, timer: StageTimer, model: str = "",
                "X-Mesh-Closed": "true" if mesh.closed else "false", "Server-Timing": timer.header()}
     if model:
         headers |= {"X-Model-Name": model, "X-Model-Version": version}
-    return Response(mesh.data, media_type=mesh.media_type, headers=headers)
+    return Response(mesh.data, media_type=mesh.media_type, headers=headers | (extra or {}))
+
+
+def framing_headers(framed: Framed, ratio: float) -> dict[str, str]:
+    """X-Mask, X-Crop-Box (when there is a box) and X-Foreground-Ratio of a photo's framing."""
+    headers = {"X-Mask": framed.mask_source, "X-Foreground-Ratio": f"{ratio:.3f}"}
+    if framed.box is not None:
+        headers["X-Crop-Box"] = ",".join(str(v) for v in framed.box)
+    return headers
 
 
 def _check_faces(surface: str, faces: int | None) -> None:
@@ -59,19 +92,29 @@ async def _submit(eng: Engine, task: str, request: Request) -> MeshFile:
     return await eng.batchers[task].submit(request)
 
 
-@router.post("/image-to-shape", response_class=Response, responses=MESH_RESPONSE,
+@router.post("/image-to-shape", response_class=Response, responses=IMAGE_RESPONSE,
              summary="A photo of one object -> its 3D shape as a mesh (closed, or the leaf patches)")
 async def image_to_shape(image: UploadFile = File(..., description="PNG, JPEG, WebP, GIF, BMP or TIFF of one object"),
                          format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q, surface: Surface = SURFACE_Q,
-                         faces: int | None = FACES_Q, color_by_depth: bool = COLOR_Q, accept: str | None = Header(None),
-                         eng: Engine = Depends(engine)) -> Response:
+                         faces: int | None = FACES_Q, color_by_depth: bool = COLOR_Q,
+                         remove_background: RemoveBackground = REMOVE_BACKGROUND_Q,
+                         foreground_ratio: float | None = FOREGROUND_RATIO_Q, debug: Debug | None = DEBUG_Q,
+                         accept: str | None = Header(None), eng: Engine = Depends(engine)) -> Response:
     b = eng.model("image-to-shape").bundle
     _check_faces(surface, faces)
     data, _ = await _read(image)
     timer = StageTimer(eng.metrics)
-    mesh = await _submit(eng, "image-to-shape", Request(data, choose_format(format, accept), depth, color_by_depth, timer,
-                                                        surface=surface, faces=faces))
-    return mesh_response(mesh, "shape", timer, b.name, b.version)
+    request = Request(data, choose_format(format, accept), depth, color_by_depth, timer, surface=surface, faces=faces,
+                      remove_background=remove_background, foreground_ratio=foreground_ratio)
+    ratio = b.image_spec().foreground_ratio if foreground_ratio is None else foreground_ratio
+    if debug == "mask":                  # only the framing: no encoder, no decoder
+        eng.check_depth(eng.model("image-to-shape"), depth)
+        png = await eng.limiter.run(lambda: eng.mask_png(request), eng.settings.timeout_s)
+        headers = {"Content-Disposition": 'inline; filename="mask.png"', "Server-Timing": timer.header(),
+                   "X-Model-Name": b.name, "X-Model-Version": b.version}
+        return Response(png, media_type="image/png", headers=headers | framing_headers(request.framed, ratio))
+    mesh = await _submit(eng, "image-to-shape", request)
+    return mesh_response(mesh, "shape", timer, b.name, b.version, framing_headers(request.framed, ratio))
 
 
 @router.post("/complete", response_class=Response, responses=MESH_RESPONSE,

@@ -32,6 +32,35 @@ def models_dir(exported, tmp_path_factory):
     return root
 
 
+@pytest.fixture(scope="session")
+def foreground_models_dir(exported, tmp_path_factory):
+    """The image bundle alone, with a foreground graph added: a random-weight ForegroundNet whose
+    head says "object" everywhere (bias +4), so that the real graph's mask is known: the whole image."""
+    import torch
+
+    from export.bundle import GraphSpec
+    from export.graphs import foreground_graph
+    from model.files import sha256_file
+    from model.networks.foreground import ForegroundNet
+    from model.preprocess import MaskSpec
+
+    root = tmp_path_factory.mktemp("foreground-models")
+    folder = root / "image-to-shape"
+    shutil.copytree(exported("image-resnet18")[2], folder)
+    torch.manual_seed(0)
+    net = ForegroundNet(width=4, levels=3)
+    with torch.no_grad():
+        net.head.bias.fill_(4.0)
+    graph = foreground_graph(net.eval(), size=64)
+    (folder / "foreground.onnx").write_bytes(graph.model)
+    meta = json.loads((folder / "model.json").read_text())
+    meta["graphs"]["foreground"] = GraphSpec("foreground", "foreground.onnx", sha256_file(folder / "foreground.onnx"),
+                                             graph.inputs, graph.outputs).to_json()
+    meta["input"]["foreground"] = MaskSpec(size=64).to_dict()
+    (folder / "model.json").write_text(json.dumps(meta))
+    return root
+
+
 def make_client(models_dir, **settings) -> TestClient:
     return TestClient(create_app(Settings(models_dir=models_dir, **settings)))
 

@@ -51,7 +51,7 @@ IMAGES = {
     "empty file": (b"", 400, "empty_input"),
     "text": (b"hello, I am not a picture", 415, "unsupported_image"),
     "truncated png": (photo()[:300], 400, "invalid_image"),
-    "fully transparent": (png(np.zeros((20, 20, 4), np.uint8)), 400, "invalid_image"),
+    "fully transparent": (png(np.zeros((20, 20, 4), np.uint8)), 422, "no_object"),
     "decompression bomb": (_gif_bomb(), 413, "image_too_large"),
     "pdf claiming to be png": (b"%PDF-1.4\n" + b"0" * 100, 415, "unsupported_image"),
 }
