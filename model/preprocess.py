@@ -260,8 +260,8 @@ def clean_mask(mask: np.ndarray, spec: MaskSpec) -> np.ndarray:
     hard = mask > 0.5
     labels, n = ndimage.label(hard)
     if n == 0:
-        raise NoObjectError("no object found in the image: send a photo of one object that stands out from "
-                            "its background, or a PNG with transparency around the object")
+        raise NoObjectError("no object found in the image: no region of it looks like an object against its "
+                            "background")
     sizes = np.bincount(labels.ravel(), minlength=n + 1)[1:]
     keep = np.flatnonzero(sizes >= spec.keep * sizes.max()) + 1
     if int(sizes[keep - 1].sum()) < spec.min_area * mask.size:
