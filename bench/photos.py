@@ -30,6 +30,7 @@ import trimesh
 from PIL import Image
 
 from model.cli import command_parser
+from model.preprocess import mask_iou
 
 REAL_MESHES = {
     # file: (category, up axis of the file): ModelNet40 is z-up, ShapeNet y-up
@@ -52,7 +53,8 @@ class Reconstruction:
 def reconstruct(data: bytes, runtime, remove_background: str = "auto") -> Reconstruction:
     """The image endpoint's work on an uploaded photo (bytes), stage by stage, timed."""
     from model.decode import DECODED_NORMALIZATION
-    from model.preprocess import NoObjectError, decode_image, frame_object
+    from model.preprocess import MaskSpec, decode_image
+    from model.train.images import frame_or_whole
     from model.surface import surface_mesh
     from service.meshes import encode
 
@@ -61,11 +63,7 @@ def reconstruct(data: bytes, runtime, remove_background: str = "auto") -> Recons
     rgba = decode_image(data)
     t1 = time.perf_counter()
     segment = runtime.segment if runtime.has_foreground else None
-    try:
-        framed = frame_object(rgba, spec, segment, remove_background, mask_spec=runtime.bundle.mask_spec())
-    except NoObjectError:             # the service answers 422 here; the bench goes on without a mask
-        framed = frame_object(rgba, spec, None, "false")
-        framed.mask_source = "missed"
+    framed = frame_or_whole(rgba, spec, segment, remove_background, runtime.bundle.mask_spec() or MaskSpec())
     t2 = time.perf_counter()
     latent = runtime.encode_image(framed.image[None])
     t3 = time.perf_counter()
@@ -230,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
         for category, name, rgb, truth in real:
             r = reconstruct(jpeg(rgb), runtime)
             ours = r.framed.mask > 127 if r.framed.mask is not None else np.zeros(truth.shape, bool)
-            iou = (ours & (truth > 0.5)).sum() / max(1, (ours | (truth > 0.5)).sum())
+            iou = mask_iou(ours, truth > 0.5)
             label, p = classify_output(classifier, r.octree, classifier.bundle.octree.depth)
             hits += label == category
             print(f"| {name} | {category} | {iou:.3f} | {label} ({p:.2f}) |")

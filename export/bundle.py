@@ -85,7 +85,7 @@ class Bundle:
         """The preprocessing an image-to-shape bundle's encoder was trained with."""
         if self.input.get("kind") != "image":
             raise BundleError(f"{self.path}: a {self.task} bundle takes no image")
-        return ImageSpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in self.input["image"].items()})
+        return ImageSpec.from_dict(self.input["image"])
 
     def mask_spec(self) -> MaskSpec | None:
         """How the bundle's foreground network takes images; None when it has none."""

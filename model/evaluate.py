@@ -47,6 +47,7 @@ from .nn.tensors import OctreeTensors
 from .octree import LEAF, Octree
 from .octree.metrics import chamfer_distance, mean_squared_distance, missing_part, sample_patches
 from .octree.batch import split_octree
+from .preprocess import MaskSpec
 from .surface import DEFAULT_SURFACE, SURFACES, surface_mesh
 from .train.config import TrainConfig
 from .train.images import image_batch, photo_batch
@@ -235,6 +236,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     if photos:
         metrics += ("mask_iou",)
     segment = runtime.segment if runtime is not None and runtime.has_foreground else None
+    mask_spec = (runtime.bundle.mask_spec() if segment is not None else None) or MaskSpec()
     per_cat: dict[str, dict[str, list[float]]] = {m: {} for m in metrics}
     per_shape: list[dict] = []
     confusion: dict[int, np.ndarray] = {}
@@ -247,7 +249,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         framing = [{}] * len(idx)
         if photos:
             images, framing = photo_batch([records.samples[i] for i in idx], task.spec(cfg), segment,
-                                          remove_background)
+                                          remove_background, mask_spec)
             with torch.no_grad():
                 latent = (torch.from_numpy(runtime.encode_image(images)) if runtime is not None
                           else model.encoder(torch.from_numpy(images)))
@@ -369,7 +371,7 @@ def evaluate_foreground(model, cfg: TrainConfig, run: str, split: str = "test", 
     resolution, through the service's path (:func:`model.preprocess.object_mask`: clean-up, a second
     pass on small objects; a photo where it finds nothing scores 0); per category and overall, with the share of photos above 0.9."""
     from .data.photos import photo_split_view
-    from .preprocess import MaskSpec, NoObjectError, mask_input, mask_output, object_mask
+    from .preprocess import NoObjectError, mask_input, mask_iou, mask_output, object_mask
 
     spec = runtime.bundle.mask_spec() if runtime is not None else MaskSpec(size=cfg.image_size)
 
@@ -390,7 +392,7 @@ def evaluate_foreground(model, cfg: TrainConfig, run: str, split: str = "test", 
         except NoObjectError:
             ours = np.zeros((h, w), bool)
         truth = photo.mask > 0.5
-        iou = float((ours & truth).sum() / max(1, (ours | truth).sum()))
+        iou = mask_iou(ours, truth)
         rows.append({"category": s.category, "shape_id": s.shape_id, "mask_iou": iou,
                      "object_share": float(truth.mean()), "photo_size": [h, w]})
     ious = np.array([r["mask_iou"] for r in rows])

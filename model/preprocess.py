@@ -52,7 +52,7 @@ class ImageSpec:
 
     @classmethod
     def from_dict(cls, d: dict) -> ImageSpec:
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+        return _spec_from_dict(cls, d)
 
 
 def decode_image(data: bytes | str | Path, max_pixels: int = MAX_PIXELS_DEFAULT) -> np.ndarray:
@@ -130,6 +130,16 @@ def mask_bounds(mask: np.ndarray) -> tuple[int, int, int, int] | None:
     return int(rows[0]), int(cols[0]), int(rows[-1]) + 1, int(cols[-1]) + 1
 
 
+def as_rgba(image: np.ndarray) -> np.ndarray:
+    """An (H, W, 4) uint8 image of an (H, W, 3|4) uint8 one (opaque alpha added); ImageError else."""
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] not in (3, 4) or image.dtype != np.uint8:
+        raise ImageError(f"expected an (H, W, 3|4) uint8 image, got {image.dtype} {image.shape}")
+    if image.shape[2] == 3:
+        image = np.concatenate([image, np.full(image.shape[:2] + (1,), 255, np.uint8)], axis=2)
+    return image
+
+
 def prepare_image(rgba: np.ndarray, spec: ImageSpec, keep_background: bool = False,
                   foreground_ratio: float | None = None, box: tuple[int, int, int, int] | None = None) -> np.ndarray:
     """The encoder's input (3, size, size) float32 from an RGBA (or RGB) uint8 image.
@@ -142,11 +152,7 @@ def prepare_image(rgba: np.ndarray, spec: ImageSpec, keep_background: bool = Fal
     beyond its border the background colour or, for an opaque image, its edge pixels), resized with
     a box filter (antialiasing) and normalised by ``spec.mean`` / ``spec.std``.
     """
-    rgba = np.asarray(rgba)
-    if rgba.ndim != 3 or rgba.shape[2] not in (3, 4) or rgba.dtype != np.uint8:
-        raise ImageError(f"expected an (H, W, 3|4) uint8 image, got {rgba.dtype} {rgba.shape}")
-    if rgba.shape[2] == 3:
-        rgba = np.concatenate([rgba, np.full(rgba.shape[:2] + (1,), 255, np.uint8)], axis=2)
+    rgba = as_rgba(rgba)
     if rgba[..., 3].max() == 0:
         raise ImageError("the image is fully transparent: there is no object to reconstruct")
     if box is None:
@@ -224,7 +230,12 @@ class MaskSpec:
 
     @classmethod
     def from_dict(cls, d: dict) -> MaskSpec:
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+        return _spec_from_dict(cls, d)
+
+
+def _spec_from_dict(cls, d: dict):
+    """A spec dataclass from its JSON form (lists back to tuples)."""
+    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
 
 
 def mask_input(rgb: np.ndarray, spec: MaskSpec) -> np.ndarray:
@@ -296,6 +307,11 @@ def object_mask(rgb: np.ndarray, segment, spec: MaskSpec) -> np.ndarray:
         return mask
 
 
+def mask_iou(ours: np.ndarray, truth: np.ndarray) -> float:
+    """Intersection over union of two boolean masks (0 when both are empty)."""
+    return float((ours & truth).sum() / max(1, (ours | truth).sum()))
+
+
 @dataclass
 class Framed:
     """The encoder's input and what was done to get it: ``image`` (3, S, S); ``mask_source``
@@ -323,23 +339,20 @@ def frame_object(rgba: np.ndarray, spec: ImageSpec, segment=None, remove_backgro
     is cropped by its border colour)."""
     if remove_background not in REMOVE_BACKGROUND:
         raise ImageError(f"remove_background must be one of {', '.join(REMOVE_BACKGROUND)}, got {remove_background!r}")
-    rgba = np.asarray(rgba)
-    if rgba.ndim != 3 or rgba.shape[2] not in (3, 4) or rgba.dtype != np.uint8:
-        raise ImageError(f"expected an (H, W, 3|4) uint8 image, got {rgba.dtype} {rgba.shape}")
-    if rgba.shape[2] == 3:
-        rgba = np.concatenate([rgba, np.full(rgba.shape[:2] + (1,), 255, np.uint8)], axis=2)
+    rgba = as_rgba(rgba)
     has_alpha = int(rgba[..., 3].min()) < 250
     if has_alpha:
         if rgba[..., 3].max() == 0:
             raise NoObjectError("the image is fully transparent: there is no object to reconstruct")
-        image = prepare_image(rgba, spec, foreground_ratio=foreground_ratio)
-        return Framed(image, "alpha", object_box(rgba, spec.border_tolerance), rgba[..., 3].copy())
+        box = object_box(rgba, spec.border_tolerance)
+        return Framed(prepare_image(rgba, spec, foreground_ratio=foreground_ratio, box=box), "alpha", box,
+                      rgba[..., 3].copy())
     if remove_background == "false" or segment is None:
         if remove_background == "true":
             raise ImageError("remove_background=true needs a foreground network, and this model has none; "
                              "send an image with transparency around the object")
-        image = prepare_image(rgba, spec, foreground_ratio=foreground_ratio)
-        return Framed(image, "none", object_box(rgba, spec.border_tolerance), None)
+        box = object_box(rgba, spec.border_tolerance)
+        return Framed(prepare_image(rgba, spec, foreground_ratio=foreground_ratio, box=box), "none", box, None)
     rgb = rgba[..., :3]
     mask = object_mask(rgb, segment, mask_spec)
     alpha = np.clip(np.round(mask * 255), 0, 255).astype(np.uint8)

@@ -15,7 +15,7 @@ import numpy as np
 from ..data.render import composite
 from ..data.shapes import stable_hash
 from ..data.photos import ENCODER_STYLE, imperfect_mask, photo_composite, photo_split_view
-from ..preprocess import ImageSpec, MaskSpec, NoObjectError, frame_object, prepare_image
+from ..preprocess import Framed, ImageSpec, MaskSpec, NoObjectError, frame_object, mask_iou, prepare_image
 from .data import Sample
 
 
@@ -84,26 +84,33 @@ def photo_input(rgba: np.ndarray, spec: ImageSpec, rng: np.random.Generator) -> 
         return prepare_image(rgba, spec)
 
 
-def photo_batch(samples: list[Sample], spec: ImageSpec, segment=None,
-                remove_background: str = "auto") -> tuple[np.ndarray, list[dict]]:
+def frame_or_whole(rgb: np.ndarray, spec: ImageSpec, segment=None, remove_background: str = "auto",
+                   mask_spec: MaskSpec = MaskSpec()) -> Framed:
+    """:func:`frame_object`, or where it finds no object (the service answers 422 there) the photo
+    framed without a mask, its ``mask_source`` "missed": how evaluations and benchmarks go on."""
+    try:
+        return frame_object(rgb, spec, segment, remove_background, mask_spec=mask_spec)
+    except NoObjectError:
+        framed = frame_object(rgb, spec, None, "false")
+        framed.mask_source = "missed"
+        return framed
+
+
+def photo_batch(samples: list[Sample], spec: ImageSpec, segment=None, remove_background: str = "auto",
+                mask_spec: MaskSpec = MaskSpec()) -> tuple[np.ndarray, list[dict]]:
     """Encoder inputs (B, 3, S, S) of each shape's fixed photo-like test view
-    (:func:`photo_split_view`) through :func:`frame_object` with ``segment`` (the foreground
+    (:func:`photo_split_view`) through :func:`frame_or_whole` with ``segment`` (the foreground
     network, or None), and per shape what was done: the mask's source, its IoU with the exact
-    mask (None without a mask), the crop box."""
+    mask (None without a mask, 0 when the network found nothing), the crop box."""
     out = np.empty((len(samples), 3, spec.size, spec.size), np.float32)
     info = []
     for i, s in enumerate(samples):
         photo = photo_split_view(s.images, s.shape_id)
-        try:
-            framed = frame_object(photo.rgb, spec, segment, remove_background)
-        except NoObjectError:                 # the network found nothing: the whole photo, as before it
-            framed = frame_object(photo.rgb, spec, None, "false")
-            framed.mask_source = "missed"
+        framed = frame_or_whole(photo.rgb, spec, segment, remove_background, mask_spec)
         out[i] = framed.image
         iou = None
         if framed.mask is not None:
-            ours, truth = framed.mask > 127, photo.mask > 0.5
-            iou = float((ours & truth).sum() / max(1, (ours | truth).sum()))
+            iou = mask_iou(framed.mask > 127, photo.mask > 0.5)
         elif framed.mask_source == "missed":
             iou = 0.0
         info.append({"mask_source": framed.mask_source, "mask_iou": iou, "box": framed.box,

@@ -142,9 +142,7 @@ class ImageTask:
         return data
 
     def build_model(self, cfg):
-        model = ImageToShape(cfg.encoder, cfg.arch, cfg.depth, latent=cfg.latent, base_channels=cfg.channels,
-                             encoder_width=cfg.encoder_width, hidden=cfg.pred_hidden,
-                             structure_loss=cfg.structure_loss, decoder_blocks=cfg.decoder_blocks)
+        model = _image_to_shape(cfg)
         if cfg.teacher is not None:
             teacher, tcfg = self._teacher(cfg)
             if tcfg.task == "image":
@@ -241,6 +239,13 @@ class ClassifyTask(OctreeInputTask):
         return OctreeTensors.from_octree(octree), torch.from_numpy(labels)
 
 
+def _image_to_shape(cfg: TrainConfig) -> ImageToShape:
+    """The image task's network, untrained, as ``cfg`` describes it (no teacher involved)."""
+    return ImageToShape(cfg.encoder, cfg.arch, cfg.depth, latent=cfg.latent, base_channels=cfg.channels,
+                        encoder_width=cfg.encoder_width, hidden=cfg.pred_hidden,
+                        structure_loss=cfg.structure_loss, decoder_blocks=cfg.decoder_blocks)
+
+
 @functools.lru_cache(maxsize=4)
 def _load_teacher(run: str) -> tuple[nn.Module, TrainConfig]:
     """A teacher run (model in eval mode, config), loaded once per process: an autoencoder, or an
@@ -249,13 +254,7 @@ def _load_teacher(run: str) -> tuple[nn.Module, TrainConfig]:
     task = saved.config.task
     if task not in ("autoencoder", "image"):
         raise ValueError(f"--teacher {run} is a {task} run, not an autoencoder or image model")
-    if task == "image":
-        c = saved.config
-        model = ImageToShape(c.encoder, c.arch, c.depth, latent=c.latent, base_channels=c.channels,
-                             encoder_width=c.encoder_width, hidden=c.pred_hidden,
-                             structure_loss=c.structure_loss, decoder_blocks=c.decoder_blocks)
-    else:
-        model = AutoencoderTask().build_model(saved.config)
+    model = _image_to_shape(saved.config) if task == "image" else AutoencoderTask().build_model(saved.config)
     model.load_state_dict(saved.weights)
     return model.eval(), saved.config
 
