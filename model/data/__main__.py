@@ -32,6 +32,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = command_parser("python -m model.data", __doc__, [
         "python -m model.data build --out data/procedural --per-category 100 --depth 6 --workers 2",
         "python -m model.data build --out data/part --per-category 800 --depth 7 --shard 0/8",
+        "python -m model.data build --out data/eval7 --per-category 800 --depth 7 --splits val test",
         "python -m model.data merge --out data/all data/part0 data/part1",
         "python -m model.data compare data/procedural other-machine/procedural"])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -54,6 +55,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     b.add_argument("--scan-resolution", type=int, default=160, help="rays per side of each scanner view (default 160)")
     b.add_argument("--shard", default=None, help="build only part K of N (K/N, 0 <= K < N) and write "
                    "manifest.shard-K-of-N.json; join the parts with merge (default: the whole dataset)")
+    b.add_argument("--splits", nargs="+", choices=("train", "val", "test"), default=None,
+                   help="build only the records of these splits (the same records a whole build makes; "
+                        "e.g. --splits test to evaluate without building the training set)")
     b.add_argument("--quiet", action="store_true", help="no progress bar")
     m = sub.add_parser("merge", help="join shard builds (--shard K/N) into one dataset and its manifest")
     m.add_argument("--out", required=True, help="dataset folder for the merged manifest (records are copied "
@@ -96,6 +100,10 @@ def run(args: argparse.Namespace) -> dict:
         tasks = layout_tasks(args.source, args.root, args.per_category, cats, args.shapenet_root)
         if not tasks:
             raise ValueError(f"no shapes found under {args.root} for --source {args.source}")
+    if args.splits:
+        tasks = [t for t in tasks if t.split in args.splits]
+        if not tasks:
+            raise ValueError(f"no shapes of splits {', '.join(args.splits)} among those asked for")
     cfg = BuildConfig(depth=args.depth, views=args.views, render_size=args.render_size,
                       partial_scans=args.partial, scan_resolution=args.scan_resolution, seed=args.seed)
     return build_dataset(args.out, tasks, cfg, workers=args.workers, progress=not args.quiet, shard=shard)

@@ -83,7 +83,8 @@ def _gather_mm(x: torch.Tensor, neighbors: torch.Tensor, w: torch.Tensor, chunk_
     n = index.shape[0]
     if n <= chunk_rows:
         return padded.index_select(0, index.reshape(-1)).view(n, KERNEL * cin).mm(w)
-    if torch.is_grad_enabled() and (x.requires_grad or w.requires_grad):      # autograd's backward
+    if (torch.is_grad_enabled() and (x.requires_grad or w.requires_grad)) or torch.is_autocast_enabled(x.device.type):
+        # autograd's backward, or autocast (mm's out= variant is not autocast)
         return torch.cat([padded.index_select(0, index[a:a + chunk_rows].reshape(-1)).view(-1, KERNEL * cin).mm(w)
                           for a in range(0, n, chunk_rows)])
     out = x.new_empty(n, w.shape[1])
@@ -113,12 +114,14 @@ class _OctreeConvFunction(torch.autograd.Function):
     def backward(ctx, grad):
         x, neighbors, w = ctx.saved_tensors
         cin, cout = x.shape[1], w.shape[1]
-        grad = grad.contiguous()
+        # under autocast (mixed precision) x and the gradient may be bfloat16 and w float32:
+        # the backward runs in float32 and returns each gradient in its input's dtype
+        x_dtype, x, grad = x.dtype, x.float(), grad.float().contiguous()
         gx = gw = None
         if ctx.needs_input_grad[0]:
             wt = w.view(KERNEL, cin, cout).flip(0).transpose(1, 2).reshape(KERNEL * cout, cin)
             chunk = max(1, CHUNK_BYTES // (KERNEL * cout * grad.element_size()))
-            gx = _gather_mm(grad, neighbors, wt, chunk)
+            gx = _gather_mm(grad, neighbors, wt, chunk).to(x_dtype)
         if ctx.needs_input_grad[2]:
             padded = torch.cat([x.new_zeros(1, cin), x])
             index = (neighbors + 1).contiguous()

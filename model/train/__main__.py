@@ -12,7 +12,8 @@ network that finds the object in a photo before the image model sees it.
 
 Progress bar with the loss, validation every --val-every steps, checkpoints written atomically
 to RUN/checkpoint.pt (a rerun resumes from it), metrics appended to RUN/metrics.jsonl, fixed
-seeds.  Several processes train data-parallel (DDP, gloo) when started with
+seeds.  ``--device cuda`` trains on a GPU (batches prepared on the CPU, by ``--loader-workers``
+processes ahead of the network).  Several processes train data-parallel (DDP, gloo) when started with
 ``torchrun --nproc_per_node K -m model.train ...``: each takes its share of every batch.
 """
 
@@ -60,6 +61,16 @@ def common_options() -> argparse.ArgumentParser:
     c.add_argument("--threads", type=int, default=None, help="torch threads per process (default: torch's)")
     c.add_argument("--limit", type=int, default=None, help="use at most this many shapes per split (default all)")
     c.add_argument("--quiet", action="store_true", help="no progress bar")
+    c.add_argument("--workers", type=int, default=1,
+                   help="processes reading the dataset (and building a task's octree cache beside it on "
+                        "first use; default 1)")
+    c.add_argument("--loader-workers", type=int, default=0,
+                   help="processes preparing the next batches while the network trains (default 0: "
+                        "prepared in the training process); the batches are the same either way")
+    c.add_argument("--device", default="cpu",
+                   help="where the network trains: cpu (default), cuda or cuda:N; batches are prepared on the CPU")
+    c.add_argument("--amp", action="store_true",
+                   help="mixed precision: the forward pass in bfloat16 autocast (default: float32)")
     return c
 
 
@@ -99,15 +110,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="the U-Net's first-stage channels, doubling per stage up to 8x (default 8)")
     f.add_argument("--image-size", type=int, default=128,
                    help="the network's input side: photos are resized to it (default 128, a multiple of 16)")
-    cached = argparse.ArgumentParser(add_help=False)
-    cached.add_argument("--workers", type=int, default=1,
-                        help="processes building the task's octree cache beside the dataset on first use (default 1)")
-    c = sub.add_parser("completion", parents=[common, cached],
+    c = sub.add_parser("completion", parents=[common],
                        help="train shape completion from partial scans (paper section 5.2)")
     c.add_argument("--arch", choices=COMPLETION_ARCHS, default="aocnn",
                    help="aocnn (default): Adaptive O-CNN; ocnn-patch (the paper's baseline), ocnn-patch-star, "
                         "ocnn-binary: O-CNN on full octrees")
-    k = sub.add_parser("classify", parents=[common, cached], help="train shape classification (paper section 5.1)")
+    k = sub.add_parser("classify", parents=[common], help="train shape classification (paper section 5.1)")
     k.add_argument("--arch", choices=sorted(CLASSIFIER_ARCHS), default="aocnn",
                    help="aocnn (default): Adaptive O-CNN on the adaptive octree; ocnn: O-CNN on the full octree")
     k.add_argument("--up", choices=UP_AXES, default="y",

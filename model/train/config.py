@@ -52,7 +52,10 @@ class TrainConfig:
     teacher: str | None = None                 # image task: regress onto this autoencoder's (or image model's) codes
     photo_share: float = 0.0                   # image task: samples made photos, brought back with an imperfect mask
     foreground_ratio: float | None = None      # image task: share of the square the object fills (None: 0.9)
-    workers: int = 1                           # completion, classify: processes building the octree cache
+    workers: int = 1                           # processes reading the dataset and building octree caches
+    loader_workers: int = 0                    # processes preparing batches ahead of the training step
+    device: str = "cpu"                        # where the network trains (cpu, cuda, cuda:N)
+    amp: bool = False                          # bfloat16 autocast of the forward pass
     up: str = "y"                              # classify: the up axis of the dataset's shapes
 
     def image_spec(self) -> ImageSpec:
@@ -78,6 +81,17 @@ class TrainConfig:
             raise ValueError(f"--lr must be positive, got {self.lr}")
         if not self.weight_decay >= 0:
             raise ValueError(f"--weight-decay must be >= 0, got {self.weight_decay}")
+        if self.loader_workers < 0:
+            raise ValueError(f"--loader-workers must be 0 or more, got {self.loader_workers}")
+        try:
+            device = torch.device(self.device)
+        except (RuntimeError, ValueError):
+            raise ValueError(f"--device {self.device!r} is not a device; use cpu, cuda or cuda:N") from None
+        if device.type not in ("cpu", "cuda"):
+            raise ValueError(f"--device {self.device!r}: training runs on cpu or cuda")
+        if device.type == "cuda" and not torch.cuda.is_available():
+            raise ValueError(f"--device {self.device}: this torch ({torch.__version__}) sees no CUDA GPU; "
+                             "train with --device cpu")
         out = Path(self.out)
         if out.exists() and not out.is_dir():
             raise ValueError(f"--out {self.out} is a file; give a run folder")

@@ -47,30 +47,49 @@ def manifest_rows(data_dir: Path, split: str, depth: int | None = None,
     return manifest, rows
 
 
+def _load_sample(path: Path, octree: str, images: bool) -> tuple[Octree, np.ndarray, np.ndarray | None]:
+    """One record's octree, its points in the octree's cube and (with ``images``) its renders;
+    ValueError naming the file if it is missing, damaged or has no renders."""
+    try:
+        rec = load_record(path)
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:   # missing, truncated or foreign file
+        raise ValueError(f"{path} is missing or damaged ({type(exc).__name__}); "
+                         "rerun python -m model.data build to repair the dataset") from None
+    tree = octree_from_arrays(rec.arrays, prefix=f"{octree}_", neighbors=False)
+    cube = tree.normalizations[0].to_cube(rec["points"])
+    views = None
+    if images:
+        views = rec["images"]
+        if views.ndim != 4 or views.shape[-1] != 4 or len(views) == 0:
+            raise ValueError(f"{path} has no RGBA renders; rebuild with --views 24")
+    return tree, cube, views
+
+
+def _load_star(args):
+    return _load_sample(*args)
+
+
 class RecordSet:
-    """The records of one split of a dataset, held in memory (octree arrays and a point subset)."""
+    """The records of one split of a dataset, held in memory (octree arrays and a point subset).
+
+    ``workers`` > 1 reads the records in that many processes (the same samples as one)."""
 
     def __init__(self, data_dir: str | Path, split: str, octree: str = "adaptive",
                  points: int = 2048, depth: int | None = None, limit: int | None = None, seed: int = 0,
-                 images: bool = False, categories: tuple[str, ...] | None = None):
+                 images: bool = False, categories: tuple[str, ...] | None = None, workers: int = 1):
         data_dir = Path(data_dir)
         _, rows = manifest_rows(data_dir, split, depth, categories, limit)
         rng = np.random.default_rng(seed)
+        jobs = [(data_dir / r["path"], octree, images) for r in rows]
+        if workers > 1 and len(jobs) > 1:
+            import multiprocessing as mp
+            with mp.get_context("fork").Pool(min(workers, len(jobs))) as pool:
+                loaded = pool.map(_load_star, jobs, chunksize=8)
+        else:
+            loaded = [_load_sample(*job) for job in jobs]
         self.samples: list[Sample] = []
-        for r in rows:
-            try:
-                rec = load_record(data_dir / r["path"])
-            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:   # missing, truncated or foreign file
-                raise ValueError(f"{data_dir / r['path']} is missing or damaged ({type(exc).__name__}); "
-                                 "rerun python -m model.data build to repair the dataset") from None
-            tree = octree_from_arrays(rec.arrays, prefix=f"{octree}_", neighbors=False)
-            cube = tree.normalizations[0].to_cube(rec["points"])
+        for r, (tree, cube, views) in zip(rows, loaded):
             pick = rng.choice(len(cube), size=points, replace=len(cube) < points)
-            views = None
-            if images:
-                views = rec["images"]
-                if views.ndim != 4 or views.shape[-1] != 4 or len(views) == 0:
-                    raise ValueError(f"{data_dir / r['path']} has no RGBA renders; rebuild with --views 24")
             self.samples.append(Sample(r["category"], r["shape_id"], tree, cube[pick].astype(np.float32), views))
         self.depth = self.samples[0].octree.depth
         self.latents = None        # optional per-shape target codes (a tensor), set by a task

@@ -1,10 +1,14 @@
-"""The training loop: seeds, batches, (distributed) optimisation, validation, checkpoints."""
+"""The training loop: seeds, batches, (distributed) optimisation, validation, checkpoints.
+
+Batches are prepared on the CPU (in the training process, or ``loader_workers`` processes ahead
+of it) and moved to ``cfg.device``; a batch is a pure function of (seed, step) either way."""
 
 from __future__ import annotations
 
 import json
 import math
 import os
+import pickle
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -21,6 +25,67 @@ from .tasks import TASKS, check_config
 
 def build_model(cfg: TrainConfig) -> torch.nn.Module:
     return TASKS[cfg.task].build_model(cfg)
+
+
+def to_device(inputs: tuple, device: torch.device) -> tuple:
+    """A batch's model arguments on ``device`` (tensors and :class:`OctreeTensors`; None stays)."""
+    return tuple(None if x is None else x.to(device) for x in inputs)
+
+
+_LOADER: Trainer | None = None
+"""The trainer whose batches a loader process prepares (set before the processes are forked)."""
+
+
+def _prepared_batch(step: int) -> bytes:
+    # pickled here by value: torch's multiprocessing reducers would pass each tensor as a file
+    # descriptor, and a depth-7 batch holds hundreds
+    return pickle.dumps(_LOADER.step_inputs(step), protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def _validation_batch(start: int) -> bytes:
+    n = len(_LOADER.val_set)
+    idx = np.arange(start, min(n, start + _LOADER.cfg.batch_size))
+    return pickle.dumps(_LOADER.task.inputs(_LOADER.cfg, _LOADER.val_set, idx, None), protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def _quiet_worker() -> None:
+    torch.set_num_threads(1)
+
+
+class Prefetcher:
+    """The model inputs of steps ``start``, ``start+1``, ... prepared by forked processes, at most
+    ``ahead`` in flight; :meth:`next` returns them in step order."""
+
+    def __init__(self, trainer: Trainer, workers: int, start: int, stop: int):
+        import multiprocessing as mp
+        from collections import deque
+        global _LOADER
+        if "fork" not in mp.get_all_start_methods():
+            raise ValueError("--loader-workers needs the fork start method (Linux); use --loader-workers 0")
+        _LOADER = trainer
+        self.pool = mp.get_context("fork").Pool(workers, initializer=_quiet_worker)
+        self.queue, self.next_step, self.stop, self.ahead = deque(), start, stop, 2 * workers
+        self._fill()
+
+    def _fill(self) -> None:
+        while len(self.queue) < self.ahead and self.next_step < self.stop:
+            self.queue.append(self.pool.apply_async(_prepared_batch, (self.next_step,)))
+            self.next_step += 1
+
+    def next(self) -> tuple:
+        batch = self.queue.popleft().get()
+        self._fill()
+        return pickle.loads(batch)
+
+    def validation(self):
+        """The validation split's batches (no augmentation), in order, prepared by the processes."""
+        n, b = len(_LOADER.val_set), _LOADER.cfg.batch_size
+        for batch in self.pool.imap(_validation_batch, range(0, n, b)):
+            yield pickle.loads(batch)
+
+    def close(self) -> None:
+        self.pool.terminate()
+        self.pool.join()
 
 
 class Trainer:
@@ -47,7 +112,8 @@ class Trainer:
         if cfg.epochs is not None:
             cfg.iters = max(1, math.ceil(cfg.epochs * len(self.train_set) / cfg.batch_size))
         torch.manual_seed(cfg.seed)
-        self.model = build_model(cfg)
+        self.device = torch.device(cfg.device)
+        self.model = build_model(cfg).to(self.device)
         self.net = self.model
         if self.world > 1:
             self.net = torch.nn.parallel.DistributedDataParallel(self.model)
@@ -59,6 +125,7 @@ class Trainer:
         marks = [int(cfg.iters * f) for f in (2 / 7, 4 / 7, 5 / 7)]
         self.sched = torch.optim.lr_scheduler.MultiStepLR(self.opt, milestones=marks, gamma=0.1)
         self.step = 0
+        self.loader: Prefetcher | None = None     # batch-preparing processes while run() runs
         self.out = Path(cfg.out)
         if self.rank == 0:
             try:
@@ -90,14 +157,18 @@ class Trainer:
         self.sched.load_state_dict(state["scheduler"])
         self.step = state["step"]
         torch.set_rng_state(state["torch_rng"])
+        if self.device.type == "cuda" and state.get("cuda_rng") is not None:
+            torch.cuda.set_rng_state(state["cuda_rng"], self.device)
 
     def save(self) -> None:
         if self.rank != 0:
             return
         with atomic_path(self.ckpt_path) as tmp:
-            torch.save({"model": self.model.state_dict(), "optimizer": self.opt.state_dict(),
-                        "scheduler": self.sched.state_dict(), "step": self.step,
-                        "torch_rng": torch.get_rng_state(), "config": asdict(self.cfg)}, tmp)
+            cuda_rng = torch.cuda.get_rng_state(self.device) if self.device.type == "cuda" else None
+            torch.save({"model": {k: v.cpu() for k, v in self.model.state_dict().items()},
+                        "optimizer": self.opt.state_dict(), "scheduler": self.sched.state_dict(),
+                        "step": self.step, "torch_rng": torch.get_rng_state(), "cuda_rng": cuda_rng,
+                        "config": asdict(self.cfg)}, tmp)
 
     # -- batches ----------------------------------------------------------------------------------
     def batch_indices(self, step: int) -> np.ndarray:
@@ -112,15 +183,28 @@ class Trainer:
         chosen = order[k * self.cfg.batch_size:(k + 1) * self.cfg.batch_size]
         return chosen[self.rank::self.world]
 
+    def step_inputs(self, step: int) -> tuple:
+        """The model inputs (on the CPU) of training step ``step``: its shapes and augmentation
+        are a function of (seed, step)."""
+        rng = np.random.default_rng([self.cfg.seed, step, 1])
+        return self.task.inputs(self.cfg, self.train_set, self.batch_indices(step), rng)
+
+    def forward(self, inputs: tuple, net: torch.nn.Module | None = None) -> dict[str, torch.Tensor]:
+        """The losses of prepared inputs, on the training device (autocast with ``cfg.amp``);
+        float32 losses."""
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.cfg.amp):
+            out = (net or self.net)(*to_device(inputs, self.device))
+        return {k: v.float() for k, v in out.items()}
+
     def losses(self, dataset: RecordSet, indices, rng: np.random.Generator | None = None) -> dict[str, torch.Tensor]:
         """The model's losses on shapes ``indices`` (random augmentation drawn from ``rng``)."""
-        return self.net(*self.task.inputs(self.cfg, dataset, indices, rng))
+        return self.forward(self.task.inputs(self.cfg, dataset, indices, rng))
 
     # -- the loop ---------------------------------------------------------------------------------
-    def train_step(self) -> dict[str, float]:
+    def train_step(self, inputs: tuple | None = None) -> dict[str, float]:
+        """One optimisation step on ``inputs`` (default: prepared here for the current step)."""
         self.model.train()
-        rng = np.random.default_rng([self.cfg.seed, self.step, 1])   # augmentation: a function of (seed, step)
-        loss = self.losses(self.train_set, self.batch_indices(self.step), rng)
+        loss = self.forward(self.step_inputs(self.step) if inputs is None else inputs)
         self.opt.zero_grad(set_to_none=True)
         loss["total"].backward()
         self.opt.step()
@@ -137,14 +221,16 @@ class Trainer:
         a resumed run matches an uninterrupted one whether or not it validated in between."""
         self.model.eval()
         sums: dict[str, float] = {}
-        n = len(self.val_set)
-        with torch.random.fork_rng(devices=[]):
+        n, b = len(self.val_set), self.cfg.batch_size
+        batches = (self.loader.validation() if self.loader is not None else
+                   (self.task.inputs(self.cfg, self.val_set, np.arange(s, min(n, s + b)), None)
+                    for s in range(0, n, b)))
+        with torch.random.fork_rng(devices=[self.device] if self.device.type == "cuda" else []):
             torch.manual_seed(self.cfg.seed)
-            for s in range(0, n, self.cfg.batch_size):
-                idx = np.arange(s, min(n, s + self.cfg.batch_size))
-                out = self.model(*self.task.inputs(self.cfg, self.val_set, idx, None))
+            for s, inputs in zip(range(0, n, b), batches):
+                out = self.forward(inputs, self.model)
                 for k, v in out.items():
-                    sums[k] = sums.get(k, 0.0) + float(v) * len(idx)
+                    sums[k] = sums.get(k, 0.0) + float(v) * (min(n, s + b) - s)
         return {k: v / n for k, v in sums.items()}
 
     def log(self, row: dict) -> None:
@@ -160,8 +246,23 @@ class Trainer:
                    disable=not self.cfg.progress or self.rank != 0)
         t0, start = time.time(), self.step
         summary: dict = {"run": str(self.out), "steps": self.cfg.iters}
+        self.loader = (Prefetcher(self, self.cfg.loader_workers, self.step, self.cfg.iters)
+                       if self.cfg.loader_workers > 0 and self.step < self.cfg.iters else None)
+        try:
+            self._loop(bar, self.loader, t0, summary)
+        finally:
+            if self.loader is not None:
+                self.loader.close()
+                self.loader = None
+        bar.close()
+        summary["seconds"] = time.time() - t0
+        if self.rank == 0:
+            print(summary_line(summary, self.step - start, self.ckpt_path), flush=True)
+        return summary
+
+    def _loop(self, bar, loader: Prefetcher | None, t0: float, summary: dict) -> None:
         while self.step < self.cfg.iters:
-            losses = self.train_step()
+            losses = self.train_step(None if loader is None else loader.next())
             summary["train"] = losses
             bar.update()
             bar.set_postfix(loss=f"{losses['total']:.4f}")
@@ -174,11 +275,6 @@ class Trainer:
                 self.log({"step": self.step, "split": "val", **summary["val"]})
             if self.step % self.cfg.ckpt_every == 0 or self.step == self.cfg.iters:
                 self.save()
-        bar.close()
-        summary["seconds"] = time.time() - t0
-        if self.rank == 0:
-            print(summary_line(summary, self.step - start, self.ckpt_path), flush=True)
-        return summary
 
 
 def summary_line(summary: dict, trained: int, ckpt: Path) -> str:

@@ -67,7 +67,7 @@ class AutoencoderTask(OctreeInputTask):
 
     def dataset(self, cfg, split, seed, points=2048, limit=None):
         return RecordSet(cfg.data, split, ARCHS[cfg.arch].octree, points=points, depth=cfg.depth,
-                         limit=limit, seed=seed, categories=cfg.categories)
+                         limit=limit, seed=seed, categories=cfg.categories, workers=cfg.workers)
 
     def build_model(self, cfg):
         return Autoencoder(cfg.arch, cfg.depth, latent=cfg.latent, base_channels=cfg.channels,
@@ -124,7 +124,7 @@ class ImageTask:
 
     def dataset(self, cfg, split, seed, points=2048, limit=None):
         data = RecordSet(cfg.data, split, "adaptive", points=points, depth=cfg.depth, limit=limit,
-                         seed=seed, images=True, categories=cfg.categories)
+                         seed=seed, images=True, categories=cfg.categories, workers=cfg.workers)
         if cfg.teacher is not None:            # the teacher's codes of every shape (or view), computed once
             model, tcfg = self._teacher(cfg)
             codes = []
@@ -275,8 +275,9 @@ class ForegroundTask:
         return MaskSpec(size=cfg.image_size)
 
     def dataset(self, cfg, split, seed, points=2048, limit=None):
-        return RecordSet(cfg.data, split, "adaptive", points=16, depth=cfg.depth, limit=limit, seed=seed,
-                         images=True, categories=cfg.categories)
+        # renders only: a dataset of any octree depth serves (the same shapes, the same renders)
+        return RecordSet(cfg.data, split, "adaptive", points=16, depth=None, limit=limit, seed=seed,
+                         images=True, categories=cfg.categories, workers=cfg.workers)
 
     def build_model(self, cfg):
         from ..networks.foreground import ForegroundModel

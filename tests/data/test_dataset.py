@@ -206,3 +206,16 @@ def test_compare_tells_rounding_from_structure(tmp_path, capsys):
     (tmp_path / "b" / "manifest.json").write_text(json.dumps(manifest))
     assert main(["compare", str(tmp_path / "a"), str(tmp_path / "b")]) == 1
     assert "adaptive_label: differs in 1 records, 1 in shape or integer values" in capsys.readouterr().out
+
+
+def test_building_only_some_splits_makes_the_same_records_as_a_whole_build(tmp_path):
+    whole, some = tmp_path / "whole", tmp_path / "some"
+    args = ["build", "--per-category", "12", "--categories", "chair", "--depth", "4", "--views", "1",
+            "--render-size", "16", "--partial", "0", "--workers", "1", "--quiet"]
+    assert main([*args, "--out", str(whole)]) == 0
+    assert main([*args, "--out", str(some), "--splits", "val", "test"]) == 0
+    rows = json.loads((whole / "manifest.json").read_text())["records"]
+    kept = json.loads((some / "manifest.json").read_text())["records"]
+    assert kept == [r for r in rows if r["split"] in ("val", "test")]
+    assert 0 < len(kept) < len(rows)
+    assert all((some / r["path"]).read_bytes() == (whole / r["path"]).read_bytes() for r in kept)
