@@ -114,9 +114,10 @@ class _OctreeConvFunction(torch.autograd.Function):
     def backward(ctx, grad):
         x, neighbors, w = ctx.saved_tensors
         cin, cout = x.shape[1], w.shape[1]
-        # under autocast (mixed precision) x and the gradient may be bfloat16 and w float32:
-        # the backward runs in float32 and returns each gradient in its input's dtype
-        x_dtype, x, grad = x.dtype, x.float(), grad.float().contiguous()
+        # under autocast (mixed precision) x and the gradient may be bfloat16 and w float32: the
+        # backward runs in the widest of the three dtypes and returns each gradient in its input's
+        dtype = torch.promote_types(torch.promote_types(x.dtype, w.dtype), grad.dtype)
+        x_dtype, x, grad = x.dtype, x.to(dtype), grad.to(dtype).contiguous()
         gx = gw = None
         if ctx.needs_input_grad[0]:
             wt = w.view(KERNEL, cin, cout).flip(0).transpose(1, 2).reshape(KERNEL * cout, cin)
