@@ -17,6 +17,7 @@ import numpy as np
 
 from ..data.dataset import ShapeRecord, load_record
 from ..files import write_atomic
+from .data import process_map
 
 
 def cache_dir(data_dir: str | Path, name: str, settings: dict) -> Path:
@@ -55,9 +56,4 @@ def load_derived(data_dir: str | Path, rows: list[dict], cache: Path,
                  workers: int = 1) -> list[tuple[dict[str, np.ndarray], dict[str, np.ndarray]]]:
     """Per manifest row: (the record arrays named in ``keep``, its derived arrays).  ``derive``
     must be a module-level function (or partial of one) when ``workers`` > 1."""
-    jobs = [(str(data_dir), r, str(cache), derive, keep) for r in rows]
-    if workers <= 1:
-        return [_one(j) for j in jobs]
-    import multiprocessing as mp
-    with mp.get_context("fork").Pool(workers) as pool:
-        return pool.map(_one, jobs, chunksize=4)
+    return process_map(_one, [(str(data_dir), r, str(cache), derive, keep) for r in rows], workers)

@@ -10,6 +10,7 @@ building the network from it is the task's (:func:`model.checkpoint.load_model`)
 from __future__ import annotations
 
 import json
+import multiprocessing
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -83,6 +84,8 @@ class TrainConfig:
             raise ValueError(f"--weight-decay must be >= 0, got {self.weight_decay}")
         if self.loader_workers < 0:
             raise ValueError(f"--loader-workers must be 0 or more, got {self.loader_workers}")
+        if (self.loader_workers > 0 or self.workers > 1) and "fork" not in multiprocessing.get_all_start_methods():
+            raise ValueError("--workers and --loader-workers need the fork start method (Linux); leave them out")
         try:
             device = torch.device(self.device)
         except (RuntimeError, ValueError):

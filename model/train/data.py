@@ -69,6 +69,16 @@ def _load_star(args):
     return _load_sample(*args)
 
 
+def process_map(fn, jobs: list, workers: int = 1, chunksize: int = 4) -> list:
+    """``[fn(j) for j in jobs]``, in ``workers`` forked processes when more than one (``fn`` a
+    module-level function or a partial of one); the results in the order of ``jobs``."""
+    if workers <= 1 or len(jobs) <= 1:
+        return [fn(j) for j in jobs]
+    import multiprocessing as mp
+    with mp.get_context("fork").Pool(min(workers, len(jobs))) as pool:
+        return pool.map(fn, jobs, chunksize=chunksize)
+
+
 class RecordSet:
     """The records of one split of a dataset, held in memory (octree arrays and a point subset).
 
@@ -80,13 +90,7 @@ class RecordSet:
         data_dir = Path(data_dir)
         _, rows = manifest_rows(data_dir, split, depth, categories, limit)
         rng = np.random.default_rng(seed)
-        jobs = [(data_dir / r["path"], octree, images) for r in rows]
-        if workers > 1 and len(jobs) > 1:
-            import multiprocessing as mp
-            with mp.get_context("fork").Pool(min(workers, len(jobs))) as pool:
-                loaded = pool.map(_load_star, jobs, chunksize=8)
-        else:
-            loaded = [_load_sample(*job) for job in jobs]
+        loaded = process_map(_load_star, [(data_dir / r["path"], octree, images) for r in rows], workers, 8)
         self.samples: list[Sample] = []
         for r, (tree, cube, views) in zip(rows, loaded):
             pick = rng.choice(len(cube), size=points, replace=len(cube) < points)

@@ -36,16 +36,11 @@ _LOADER: Trainer | None = None
 """The trainer whose batches a loader process prepares (set before the processes are forked)."""
 
 
-def _prepared_batch(step: int) -> bytes:
-    # pickled here by value: torch's multiprocessing reducers would pass each tensor as a file
-    # descriptor, and a depth-7 batch holds hundreds
-    return pickle.dumps(_LOADER.step_inputs(step), protocol=pickle.HIGHEST_PROTOCOL)
-
-
-def _validation_batch(start: int) -> bytes:
-    n = len(_LOADER.val_set)
-    idx = np.arange(start, min(n, start + _LOADER.cfg.batch_size))
-    return pickle.dumps(_LOADER.task.inputs(_LOADER.cfg, _LOADER.val_set, idx, None), protocol=pickle.HIGHEST_PROTOCOL)
+def _prepared(call: tuple[str, int]) -> bytes:
+    """``_LOADER.<method>(arg)`` in a loader process, pickled by value: torch's multiprocessing
+    reducers would pass each tensor as a file descriptor, and a depth-7 batch holds hundreds."""
+    method, arg = call
+    return pickle.dumps(getattr(_LOADER, method)(arg), protocol=pickle.HIGHEST_PROTOCOL)
 
 
 def _quiet_worker() -> None:
@@ -60,16 +55,15 @@ class Prefetcher:
         import multiprocessing as mp
         from collections import deque
         global _LOADER
-        if "fork" not in mp.get_all_start_methods():
-            raise ValueError("--loader-workers needs the fork start method (Linux); use --loader-workers 0")
         _LOADER = trainer
+        self.trainer = trainer
         self.pool = mp.get_context("fork").Pool(workers, initializer=_quiet_worker)
         self.queue, self.next_step, self.stop, self.ahead = deque(), start, stop, 2 * workers
         self._fill()
 
     def _fill(self) -> None:
         while len(self.queue) < self.ahead and self.next_step < self.stop:
-            self.queue.append(self.pool.apply_async(_prepared_batch, (self.next_step,)))
+            self.queue.append(self.pool.apply_async(_prepared, (("step_inputs", self.next_step),)))
             self.next_step += 1
 
     def next(self) -> tuple:
@@ -79,8 +73,7 @@ class Prefetcher:
 
     def validation(self):
         """The validation split's batches (no augmentation), in order, prepared by the processes."""
-        n, b = len(_LOADER.val_set), _LOADER.cfg.batch_size
-        for batch in self.pool.imap(_validation_batch, range(0, n, b)):
+        for batch in self.pool.imap(_prepared, [("validation_inputs", s) for s in self.trainer.validation_starts()]):
             yield pickle.loads(batch)
 
     def close(self) -> None:
@@ -189,6 +182,15 @@ class Trainer:
         rng = np.random.default_rng([self.cfg.seed, step, 1])
         return self.task.inputs(self.cfg, self.train_set, self.batch_indices(step), rng)
 
+    def validation_starts(self) -> range:
+        """The first index of each validation batch."""
+        return range(0, len(self.val_set), self.cfg.batch_size)
+
+    def validation_inputs(self, start: int) -> tuple:
+        """The model inputs (on the CPU, no augmentation) of the validation batch from ``start``."""
+        idx = np.arange(start, min(len(self.val_set), start + self.cfg.batch_size))
+        return self.task.inputs(self.cfg, self.val_set, idx, None)
+
     def forward(self, inputs: tuple, net: torch.nn.Module | None = None) -> dict[str, torch.Tensor]:
         """The losses of prepared inputs, on the training device (autocast with ``cfg.amp``);
         float32 losses."""
@@ -221,16 +223,14 @@ class Trainer:
         a resumed run matches an uninterrupted one whether or not it validated in between."""
         self.model.eval()
         sums: dict[str, float] = {}
-        n, b = len(self.val_set), self.cfg.batch_size
-        batches = (self.loader.validation() if self.loader is not None else
-                   (self.task.inputs(self.cfg, self.val_set, np.arange(s, min(n, s + b)), None)
-                    for s in range(0, n, b)))
+        n, starts = len(self.val_set), self.validation_starts()
+        batches = self.loader.validation() if self.loader is not None else map(self.validation_inputs, starts)
         with torch.random.fork_rng(devices=[self.device] if self.device.type == "cuda" else []):
             torch.manual_seed(self.cfg.seed)
-            for s, inputs in zip(range(0, n, b), batches):
+            for s, inputs in zip(starts, batches):
                 out = self.forward(inputs, self.model)
                 for k, v in out.items():
-                    sums[k] = sums.get(k, 0.0) + float(v) * (min(n, s + b) - s)
+                    sums[k] = sums.get(k, 0.0) + float(v) * (min(n, s + self.cfg.batch_size) - s)
         return {k: v / n for k, v in sums.items()}
 
     def log(self, row: dict) -> None:
@@ -249,7 +249,7 @@ class Trainer:
         self.loader = (Prefetcher(self, self.cfg.loader_workers, self.step, self.cfg.iters)
                        if self.cfg.loader_workers > 0 and self.step < self.cfg.iters else None)
         try:
-            self._loop(bar, self.loader, t0, summary)
+            self._loop(bar, t0, summary)
         finally:
             if self.loader is not None:
                 self.loader.close()
@@ -260,9 +260,9 @@ class Trainer:
             print(summary_line(summary, self.step - start, self.ckpt_path), flush=True)
         return summary
 
-    def _loop(self, bar, loader: Prefetcher | None, t0: float, summary: dict) -> None:
+    def _loop(self, bar, t0: float, summary: dict) -> None:
         while self.step < self.cfg.iters:
-            losses = self.train_step(None if loader is None else loader.next())
+            losses = self.train_step(None if self.loader is None else self.loader.next())
             summary["train"] = losses
             bar.update()
             bar.set_postfix(loss=f"{losses['total']:.4f}")
