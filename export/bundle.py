@@ -94,6 +94,11 @@ class Bundle:
             return None
         return MaskSpec.from_dict(fg)
 
+    def keep_scan_bias(self) -> dict[int, float]:
+        """The empty-class bias per depth a completion decodes with when its output keeps the
+        scan (chosen on the validation split by ``python -m model.calibrate --keep-scan``); {} if none."""
+        return {int(d): float(b) for d, b in self.output.get("keep_scan", {}).get("empty_bias", {}).items()}
+
     def checksums(self) -> dict[str, str]:
         return {g.file: g.sha256 for g in self.graphs.values()}
 
@@ -162,6 +167,12 @@ def parse_manifest(meta: dict, path: Path) -> Bundle:
             raise BundleError(f"{gw}: file must be a plain .onnx file name inside the bundle, got {file!r}")
         graphs[name] = GraphSpec(name, file, _get(g, "sha256", str, gw), _io(g.get("inputs"), f"{gw}.inputs"),
                                  _io(g.get("outputs"), f"{gw}.outputs"))
+    keep = _get(meta, "output", dict, where).get("keep_scan", {})
+    bias = keep.get("empty_bias", {}) if isinstance(keep, dict) else None
+    if not isinstance(bias, dict) or not all(
+            str(d).isdigit() and int(d) <= octree.depth and isinstance(b, (int, float)) and math.isfinite(b)
+            for d, b in bias.items()):
+        raise BundleError(f"{where}: output.keep_scan.empty_bias must map depths (<= {octree.depth}) to numbers")
     missing = [g for g in required_graphs(task, octree) if g not in graphs]
     if missing:
         raise BundleError(f"{where}: a {task} bundle needs the graphs {', '.join(missing)}")

@@ -103,7 +103,10 @@ def _io_spec(src: Loaded, task: str, foreground: Loaded | None = None) -> tuple[
             inp["points"]["up"] = src.config.up
     if task == "classify":
         return inp, {"kind": "probabilities", "classes": list(src.config.categories)}
-    return inp, {"kind": "patches", "coordinates": "unit cube [0, 1]^3 (the service maps them to the input's frame)"}
+    out = {"kind": "patches", "coordinates": "unit cube [0, 1]^3 (the service maps them to the input's frame)"}
+    if task == "completion" and src.meta.get("keep_scan"):
+        out["keep_scan"] = src.meta["keep_scan"]          # the decode setting chosen for keep_scan outputs
+    return inp, out
 
 
 def export_graphs(src: Loaded) -> list[G.Graph]:

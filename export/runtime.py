@@ -131,10 +131,12 @@ class Runtime:
     def steps(self, depth: int | None = None) -> OrtSteps:
         return OrtSteps(self, depth)
 
-    def decode(self, latent: np.ndarray, depth: int | None = None) -> Octree:
-        """Grow the octrees of latent codes (B, L) down to ``depth`` (default: the bundle's)."""
+    def decode(self, latent: np.ndarray, depth: int | None = None,
+               empty_bias: dict[int, float] | None = None) -> Octree:
+        """Grow the octrees of latent codes (B, L) down to ``depth`` (default: the bundle's);
+        ``empty_bias`` as :func:`model.decode.decode`'s."""
         o = self.bundle.octree
-        return decode(self.steps(depth), np.asarray(latent, np.float32), o.full_depth, o.adaptive_depth)
+        return decode(self.steps(depth), np.asarray(latent, np.float32), o.full_depth, o.adaptive_depth, empty_bias)
 
 
 def octree_feeds(octree: Octree, spec: GraphSpec) -> dict[str, np.ndarray]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Mapping
 from typing import Any, Protocol
 
 import numpy as np
@@ -96,13 +97,17 @@ def status_to_labels(logits: np.ndarray, classes: int, last: bool) -> np.ndarray
 
 
 def decode(steps: DecoderSteps, latent: np.ndarray, full_depth: int = 2,
-           adaptive_depth: int = 4) -> Octree:
+           adaptive_depth: int = 4, empty_bias: Mapping[int, float] | None = None) -> Octree:
     """Grow the octree of each latent code (B, L) down to ``steps.depth``.
 
     Every octant's status decides whether it is empty, a leaf with its predicted patch, or split;
-    split octants hand their features to their 8 children.  Returns a batched :class:`Octree`
-    in unit-cube coordinates (see :data:`DECODED_NORMALIZATION`).
+    split octants hand their features to their 8 children.  ``empty_bias`` (depth -> bias) is
+    added to the empty class's logit at those depths: a positive bias keeps only the octants the
+    decoder is surer of (a completion fused with its scan uses it, see
+    :func:`model.octree.fuse.keep_scan`).  Returns a batched :class:`Octree` in unit-cube
+    coordinates (see :data:`DECODED_NORMALIZATION`).
     """
+    empty_bias = dict(empty_bias or {})
     latent = np.asarray(latent)
     batch = len(latent)
     levels = full_levels(batch, full_depth)
@@ -110,6 +115,9 @@ def decode(steps: DecoderSteps, latent: np.ndarray, full_depth: int = 2,
     for d in range(full_depth, steps.depth + 1):
         lv = levels[d]
         features, logits, planes = steps.predict(d, features, lv.neighbors)
+        if empty_bias.get(d):
+            logits = np.array(logits, dtype=np.float32)
+            logits[:, EMPTY] += empty_bias[d]
         last = d == steps.depth
         lv.label = status_to_labels(np.asarray(logits), steps.classes(d), last)
         filled = lv.label != EMPTY

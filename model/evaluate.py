@@ -47,6 +47,7 @@ from .nn.tensors import OctreeTensors
 from .octree import LEAF, Octree
 from .octree.metrics import chamfer_distance, mean_squared_distance, missing_part, sample_patches
 from .octree.batch import split_octree
+from .octree.fuse import keep_scan
 from .preprocess import MaskSpec
 from .surface import DEFAULT_SURFACE, SURFACES, surface_mesh
 from .train.config import TrainConfig
@@ -103,9 +104,12 @@ ATLAS_GRID = 20
 
 
 def decoded_points(model, latent: torch.Tensor, octree_batch: Octree | None, resolution: int, seed: int,
-                   oracle: str = "none", steps=None) -> list[tuple[np.ndarray, Octree | None]]:
+                   oracle: str = "none", steps=None, scans: list[Octree] | None = None,
+                   empty_bias: dict[int, float] | None = None) -> list[tuple[np.ndarray, Octree | None]]:
     """Per shape of the batch: decoded points in cube coordinates, and the decoded octree (or None).
-    ``steps``: the decoder steps to grow octrees with (default: the torch decoder's)."""
+    ``steps``: the decoder steps to grow octrees with (default: the torch decoder's).  ``scans``:
+    each shape's input scan octree, kept where it saw the shape (:func:`keep_scan`); ``empty_bias``
+    as :func:`model.decode.decode`'s."""
     dec = model.decoder
     if isinstance(dec, (PointSetDecoder, AtlasNetDecoder)):
         with torch.no_grad():
@@ -115,7 +119,9 @@ def decoded_points(model, latent: torch.Tensor, octree_batch: Octree | None, res
     out = []
     if oracle != "none":
         steps = Oracle(steps, octree_batch, planes=oracle == "all")
-    for tree in split_octree(decode(steps, latent.numpy()), neighbors=False):
+    for b, tree in enumerate(split_octree(decode(steps, latent.numpy(), empty_bias=empty_bias), neighbors=False)):
+        if scans is not None:
+            tree = keep_scan(tree, scans[b])
         if dec.has_plane(tree.depth):
             pts = sample_patches(tree, resolution=resolution, seed=seed, world=False)
         else:
@@ -175,6 +181,11 @@ def _missing(sample, pts: np.ndarray, depth: int) -> dict:
             "input_missing_x1e3": mean_squared_distance(part, sample.partial) * 1e3}
 
 
+def keep_scan_bias(meta: dict) -> dict[int, float]:
+    """The empty-class bias per depth a run or checkpoint decodes keep_scan outputs with ({} if none)."""
+    return {int(d): float(b) for d, b in (meta.get("keep_scan") or {}).get("empty_bias", {}).items()}
+
+
 def _mean_or_none(values: list[float]) -> float | None:
     return float(np.mean(values)) if values else None
 
@@ -182,14 +193,17 @@ def _mean_or_none(values: list[float]) -> float | None:
 def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, limit: int | None = None,
              mesh_dir: str | None = None, batch_size: int = 8, seed: int = 0, oracle: str = "none",
              align: bool = False, bundle: str | None = None, normals: str = "given",
-             surface: str = DEFAULT_SURFACE, photos: bool = False, remove_background: str = "auto") -> dict:
+             surface: str = DEFAULT_SURFACE, photos: bool = False, remove_background: str = "auto",
+             keep_scan: bool = False) -> dict:
     """The results dictionary written by the CLI (see the module docstring).  ``bundle``: encode
     and decode with this exported bundle in onnxruntime instead of the torch model.  ``normals``:
     completion inputs built with the scanner's normals or with estimated ones.  ``surface``: the
     surface written to ``mesh_dir`` (both are measured).  ``photos``: image models see each shape's
     photo-like test view (a render on a held-out background, no alpha) through the service's
     background removal (the bundle's foreground network; ``remove_background`` as the service's
-    parameter), and the mask's IoU with the exact one is reported."""
+    parameter), and the mask's IoU with the exact one is reported.  ``keep_scan``: completion outputs
+    keep the scan's own patches where it saw the shape (:func:`model.octree.fuse.keep_scan`, the
+    service's ``keep_scan``)."""
     if oracle not in ORACLES:
         raise ValueError(f"--oracle must be one of {', '.join(ORACLES)}")
     loaded = load_model(run)
@@ -210,6 +224,8 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
             raise ValueError(f"--bundle {bundle} serves {runtime.bundle.task}, but {run} is a {cfg.task} model")
     if photos and cfg.task != "image":
         raise ValueError("--photos goes with an image model")
+    if keep_scan and cfg.task != "completion":
+        raise ValueError("--keep-scan goes with a completion model")
     if cfg.task == "classify":
         return evaluate_classifier(model, cfg, run, split, limit, runtime=runtime, bundle=bundle)
     if cfg.task == "foreground":
@@ -224,6 +240,9 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
             raise ValueError(f"cannot create --mesh-dir {mesh_dir}: {exc.strerror}") from None
     task = TASKS[cfg.task]
     completion = cfg.task == "completion"
+    fill_bias = None
+    if keep_scan:     # the decode setting chosen for keep_scan outputs: the bundle's when it is served
+        fill_bias = runtime.bundle.keep_scan_bias() if runtime is not None else keep_scan_bias(loaded.meta)
     extra = {"normals": normals} if completion else {}
     records = task.dataset(cfg, split, seed, points=20_000, limit=limit, **extra)
     metrics = ("chamfer_x1e3", "chamfer_icp_x1e3") if align else ("chamfer_x1e3",)
@@ -264,8 +283,10 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         if octree_decoder:
             for d, m in status_confusion(model, latent, OctreeTensors.from_octree(octree)).items():
                 confusion[d] = confusion.get(d, 0) + m
+        scans = [records.scan(i) for i in idx] if keep_scan else None
         for i, frame, (pts, tree) in zip(idx, framing, decoded_points(model, latent, octree, resolution, seed,
-                                                                      oracle, runtime and runtime.steps())):
+                                                                      oracle, runtime and runtime.steps(), scans,
+                                                                      fill_bias)):
             sample = records.samples[i]
             pts = truth_view(sample, pts)
             row = {"category": sample.category, "shape_id": sample.shape_id,
@@ -322,6 +343,8 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         results["encoder"] = cfg.encoder
     if completion:
         results["normals"] = normals
+        results["keep_scan"] = keep_scan
+        results["keep_scan_empty_bias"] = {str(d): b for d, b in sorted((fill_bias or {}).items())}
     return results
 
 
@@ -448,6 +471,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--normals", choices=("given", "estimated"), default="given",
                     help="completion: build the partial scans' octrees with the scanner's normals (default) "
                          "or with normals estimated from the points")
+    ap.add_argument("--keep-scan", action="store_true",
+                    help="completion: keep the scan's own patches where it saw the shape, the network's "
+                         "elsewhere (the service's keep_scan)")
     args = ap.parse_args(argv)
     try:
         folder = os.path.dirname(os.path.abspath(args.out))
@@ -457,7 +483,8 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError("--resolution must be at least 2 and --limit at least 1")
         results = evaluate(args.run, args.data, args.split, args.resolution, args.limit, args.mesh_dir,
                            oracle=args.oracle, align=args.icp, bundle=args.bundle, normals=args.normals,
-                           surface=args.surface, photos=args.photos, remove_background=args.remove_background)
+                           surface=args.surface, photos=args.photos, remove_background=args.remove_background,
+                           keep_scan=args.keep_scan)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

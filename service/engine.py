@@ -17,9 +17,10 @@ from export.runtime import Runtime
 from model.decode import DECODED_NORMALIZATION
 from model.preprocess import Framed, MaskSpec
 from model.surface import DEFAULT_SURFACE, SURFACES, surface_mesh
-from model.octree import PointCloud, build_octree, scan_octree
+from model.octree import Octree, PointCloud, build_octree, scan_octree
 from model.octree.geometry import up_rotations
 from model.octree.batch import merge_octrees, split_octree
+from model.octree.fuse import keep_scan
 
 from .batching import Batcher
 from .errors import APIError
@@ -52,6 +53,7 @@ class Request:
     remove_background: str = "auto"
     foreground_ratio: float | None = None
     framed: Framed | None = None
+    keep_scan: bool = False            # completion: the output keeps the scan's patches where it has points
 
 
 @dataclass
@@ -175,7 +177,11 @@ class Engine:
         def encode(inputs):
             return served.runtime.encode_image(np.stack(inputs))
 
-        return self._batch(served, items, prepare, encode, lambda _: DECODED_NORMALIZATION)
+        def place(tree: Octree, _, __) -> Octree:
+            tree.normalizations = [DECODED_NORMALIZATION]
+            return tree
+
+        return self._batch(served, items, prepare, encode, place)
 
     def complete_batch(self, items: list[Request]) -> list[MeshFile | APIError]:
         """Partial scans -> completed meshes in each scan's frame, as one batch."""
@@ -194,9 +200,19 @@ class Engine:
         def encode(trees):
             return served.runtime.encode_octree(merge_octrees(trees))
 
-        return self._batch(served, items, prepare, encode, lambda tree: tree.normalizations[0])
+        def place(tree: Octree, scan: Octree, item: Request) -> Octree:
+            tree.normalizations = list(scan.normalizations)   # decoded in the scan's frame
+            if not item.keep_scan:
+                return tree
+            with item.timer("keep_scan"):
+                return keep_scan(tree, scan)
 
-    def _batch(self, served: Served, items: list[Request], prepare, encode, frame) -> list[MeshFile | APIError]:
+        return self._batch(served, items, prepare, encode, place)
+
+    def _batch(self, served: Served, items: list[Request], prepare, encode, place) -> list[MeshFile | APIError]:
+        """Prepare each item (its own errors kept for it), encode all, decode per depth (and
+        keep_scan: its outputs decode with the bundle's keep_scan bias), and ``place(tree,
+        prepared, item)`` each decoded tree in the item's frame before meshing."""
         out: list = [None] * len(items)
         ready = []
         for i, item in enumerate(items):
@@ -210,14 +226,16 @@ class Engine:
         t = time.perf_counter()
         latent = encode([x for _, x in ready])
         _share([items[i] for i, _ in ready], "encoder", time.perf_counter() - t)
-        for depth in sorted({items[i].depth for i, _ in ready}):
-            group = [k for k, (i, _) in enumerate(ready) if items[i].depth == depth]
+        bias = served.bundle.keep_scan_bias()        # the decode setting of outputs that keep the scan
+        for depth, keep in sorted({(items[i].depth, items[i].keep_scan) for i, _ in ready}):
+            group = [k for k, (i, _) in enumerate(ready) if (items[i].depth, items[i].keep_scan) == (depth, keep)]
             t = time.perf_counter()
-            decoded = split_octree(served.runtime.decode(latent[group], depth), neighbors=False)
+            decoded = split_octree(served.runtime.decode(latent[group], depth, bias if keep else None),
+                                   neighbors=False)
             _share([items[ready[k][0]] for k in group], "decoder", time.perf_counter() - t)
             for k, tree in zip(group, decoded):
                 i, x = ready[k]
-                tree.normalizations = [frame(x)]
+                tree = place(tree, x, items[i])
                 try:
                     out[i] = _mesh(tree, items[i].fmt, items[i].color, items[i].timer, items[i].surface, items[i].faces)
                 except APIError as exc:

@@ -7,7 +7,7 @@ from contextlib import contextmanager
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 
-STAGES = ("decode_input", "mask", "octree_build", "encoder", "decoder", "surface", "mesh_encode")
+STAGES = ("decode_input", "mask", "octree_build", "encoder", "decoder", "keep_scan", "surface", "mesh_encode")
 LATENCY_BUCKETS = (0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60)
 
 

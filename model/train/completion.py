@@ -111,6 +111,10 @@ class CompletionSet:
             targets.append(v.target)
         return merge_octrees(inputs, neighbors=True), merge_octrees(targets, neighbors=True)
 
+    def scan(self, i: int) -> Octree:
+        """The input octree of sample ``i``'s evaluation view (scan 0, the set's normals mode)."""
+        return self.variants[i][0].inputs[self.normals]
+
     def batch(self, indices) -> tuple[Octree, np.ndarray]:
         """The merged target octree of the evaluation view and the truth points (B, P, 3)."""
         _, target = self.pairs(indices)

@@ -141,6 +141,11 @@ class SavedRun:
     meta: dict = field(default_factory=dict)
 
 
+KEEP_SCAN_FILE = "keep_scan.json"
+"""A run folder's decode setting for completions that keep the scan (a checkpoint folder keeps it
+in model.json's ``keep_scan``), written by ``python -m model.calibrate --keep-scan``."""
+
+
 def read_run(path: str | Path) -> SavedRun:
     """The configuration and weights of a run folder or a checkpoint folder.  ValueError if ``path``
     is neither, or its weights do not match the checksum model.json records.  Half-precision
@@ -159,6 +164,8 @@ def read_run(path: str | Path) -> SavedRun:
         meta = {"config": {k: v for k, v in state["config"].items() if k not in ("out", "progress")},
                 "steps": state.get("step"), "calibration": state.get("calibration"),
                 "weights_sha256": None, "source_run": str(path.resolve())}
+        if (path / KEEP_SCAN_FILE).is_file():
+            meta["keep_scan"] = json.loads((path / KEEP_SCAN_FILE).read_text())
     else:
         raise ValueError(f"{path}: neither a run folder (checkpoint.pt) nor a checkpoint folder "
                          f"(model.pt + model.json)")

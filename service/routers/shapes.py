@@ -53,6 +53,9 @@ REMOVE_BACKGROUND_Q = Query("auto", description="auto: an image with transparenc
                             "never run the network (an opaque image is cropped by its border colour)")
 FOREGROUND_RATIO_Q = Query(None, ge=0.3, le=1.0, description="the share of the encoder's square the object's longest "
                            "side fills (default the model's, GET /v1/models: foreground_ratio)")
+KEEP_SCAN_Q = Query(True, description="true: where the scan has points the output keeps the scan's own patches (its "
+                    "adaptive octree), and the network's patches fill only the octants the scan left empty; false: "
+                    "the network's output alone (it re-draws the scanned parts too, coarser)")
 DEBUG_Q = Query(None, description="mask: answer with the mask the framing used (an 8-bit greyscale PNG of the "
                 "image's size, 255 = object) instead of the mesh; 422 no_mask when there is none")
 
@@ -122,16 +125,17 @@ async def image_to_shape(image: UploadFile = File(..., description="PNG, JPEG, W
 async def complete(points: UploadFile = File(..., description="PLY (ascii/binary), XYZ/TXT, NPY, NPZ or OBJ "
                                               "vertices, with or without normals"),
                    format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q, surface: Surface = SURFACE_Q,
-                   faces: int | None = FACES_Q, color_by_depth: bool = COLOR_Q, accept: str | None = Header(None),
-                   eng: Engine = Depends(engine)) -> Response:
+                   faces: int | None = FACES_Q, color_by_depth: bool = COLOR_Q, keep_scan: bool = KEEP_SCAN_Q,
+                   accept: str | None = Header(None), eng: Engine = Depends(engine)) -> Response:
     b = eng.model("completion").bundle
     _check_faces(surface, faces)
     data, filename = await _read(points)
     timer = StageTimer(eng.metrics)
     mesh = await _submit(eng, "completion",
                          Request(data, choose_format(format, accept), depth, color_by_depth, timer, filename, surface,
-                                 faces))
-    return mesh_response(mesh, "completed", timer, b.name, b.version)
+                                 faces, keep_scan=keep_scan))
+    return mesh_response(mesh, "completed", timer, b.name, b.version,
+                         {"X-Keep-Scan": "true" if keep_scan else "false"})
 
 
 @router.post("/octree", response_class=Response, responses=MESH_RESPONSE,

@@ -46,6 +46,11 @@ def test_a_bundle_with_one_flipped_byte_is_refused_naming_the_file(bundle_copy):
     ("path outside", lambda m: m["graphs"]["decoder_start"].update(file="../x.onnx"), r"plain \.onnx file name"),
     ("no octree", lambda m: m.pop("octree"), r"missing 'octree'"),
     ("bad depths", lambda m: m["octree"].update(adaptive_depth=9), r"adaptive_depth <= depth"),
+    ("keep_scan bias too deep", lambda m: m["output"].update(keep_scan={"empty_bias": {"9": 1.0}}),
+     r"output\.keep_scan\.empty_bias must map depths"),
+    ("keep_scan bias not a number", lambda m: m["output"].update(keep_scan={"empty_bias": {"5": "high"}}),
+     r"output\.keep_scan\.empty_bias must map depths"),
+    ("keep_scan not a mapping", lambda m: m["output"].update(keep_scan=[1]), r"output\.keep_scan\.empty_bias"),
 ])
 def test_an_inconsistent_manifest_is_refused_saying_what_is_wrong(bundle_copy, case, edit, message):
     _edit_manifest(bundle_copy, edit)

@@ -99,3 +99,20 @@ def test_split_predicted_at_the_max_depth_becomes_a_leaf():
     assert len(last) == 8 ** 4 and np.all(last.label == LEAF) and not np.any(last.label == SPLIT)
     assert np.all(out.levels[3].label == SPLIT)
     assert len(patches_to_mesh(out, world=False).faces) == 2 * 8 ** 4     # one square per leaf
+
+
+def test_an_empty_bias_prunes_only_the_depths_it_is_given():
+    """Logits are one-hot (1 for the true class): a bias above 1 on *empty* at depth 5 empties
+    every depth-5 octant, keeps depths 2-4 as they were, and leaves depth 6 with nothing to grow."""
+    pts, nrm = sphere_points(20_000)
+    truth = build_octree((pts, nrm), 6)
+    base = decode(OracleSteps(truth), np.zeros((1, 8)))
+    same = decode(OracleSteps(truth), np.zeros((1, 8)), empty_bias={5: 0.0})
+    assert all(np.array_equal(a.label, b.label) for a, b in zip(base.levels, same.levels))
+    pruned = decode(OracleSteps(truth), np.zeros((1, 8)), empty_bias={5: 1.5})
+    for d in range(5):
+        assert np.array_equal(pruned.levels[d].label, base.levels[d].label)
+    assert np.all(pruned.levels[5].label == EMPTY) and base.levels[5].nonempty.any()
+    assert len(pruned.levels[6]) == 0
+    half = decode(OracleSteps(truth), np.zeros((1, 8)), empty_bias={5: 0.5})     # below the margin: no change
+    assert all(np.array_equal(a.label, b.label) for a, b in zip(base.levels, half.levels))

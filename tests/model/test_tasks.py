@@ -83,6 +83,33 @@ def test_completion_training_resumes_and_evaluates_against_the_input_floor(scan_
             np.mean([np.mean([r["input_chamfer_x1e3"] for r in res["per_shape"] if r["category"] == c])
                      for c in {r["category"] for r in res["per_shape"]}]))
     assert table_main([str(tmp_path / "given.json"), str(tmp_path / "estimated.json")]) == 0
+    # keep_scan (the scan's own patches where it saw the shape: tests/octree/test_fuse.py) changes
+    # the outputs, not the inputs
+    kept = tmp_path / "kept.json"
+    assert evaluate_main([str(tmp_path / "a"), "--data", str(scan_data), "--split", "train", "--limit", "4",
+                          "--resolution", "32", "--keep-scan", "--out", str(kept)]) == 0
+    kept, plain = json.loads(kept.read_text()), json.loads((tmp_path / "given.json").read_text())
+    assert kept["keep_scan"] is True and plain["keep_scan"] is False
+    assert all(a["chamfer_x1e3"] != b["chamfer_x1e3"] for a, b in zip(kept["per_shape"], plain["per_shape"]))
+
+    # the keep_scan bias: chosen on a split, recorded with the run, used by evaluation, carried by export
+    from export.bundle import load_bundle
+    from export.exporter import export
+    from model.calibrate import keep_scan_candidates, main as calibrate_main
+
+    assert calibrate_main([str(tmp_path / "a"), "--data", str(scan_data), "--split", "train", "--keep-scan"]) == 0
+    report = json.loads((tmp_path / "a" / "keep_scan.json").read_text())
+    scores = [c["chamfer_x1e3_category_mean"] for c in report["candidates"]]
+    assert len(scores) == len(keep_scan_candidates(5)) and report["chamfer_x1e3_category_mean"] == min(scores)
+    chosen = report["candidates"][scores.index(min(scores))]["empty_bias"]
+    assert report["empty_bias"] == chosen
+    again = tmp_path / "again.json"
+    assert evaluate_main([str(tmp_path / "a"), "--data", str(scan_data), "--split", "train", "--limit", "4",
+                          "--resolution", "32", "--keep-scan", "--out", str(again)]) == 0
+    assert json.loads(again.read_text())["keep_scan_empty_bias"] == chosen
+    export(tmp_path / "a", tmp_path / "completion-bundle")
+    assert load_bundle(tmp_path / "completion-bundle").keep_scan_bias() == {int(d): b for d, b in chosen.items()}
+    assert [r["input_chamfer_x1e3"] for r in kept["per_shape"]] == [r["input_chamfer_x1e3"] for r in plain["per_shape"]]
 
 
 def test_completion_cache_is_rebuilt_when_stale_or_damaged(scan_data):
@@ -98,7 +125,7 @@ def test_completion_cache_is_rebuilt_when_stale_or_damaged(scan_data):
         assert str(f["record_sha256"]) != ""
 
 
-def test_classify_trains_on_rotations_resumes_and_votes(tiny_data, tmp_path):
+def test_classify_trains_on_rotations_resumes_and_votes(tiny_data, tmp_path, capsys):
     from model.evaluate import main as evaluate_main
     from model.train.classify import ROTATIONS
 
@@ -122,6 +149,8 @@ def test_classify_trains_on_rotations_resumes_and_votes(tiny_data, tmp_path):
     assert len(res["accuracy_per_rotation"]) == ROTATIONS and res["accuracy_per_rotation"][0] == res["accuracy"]
     assert np.sum(res["confusion"]) == res["shapes"]
     assert res["voted_accuracy"] == pytest.approx(np.trace(res["confusion"]) / res["shapes"])
+    assert evaluate_main([str(tmp_path / "a"), "--data", str(tiny_data), "--keep-scan", "--out", str(out)]) == 2
+    assert "--keep-scan goes with a completion model" in capsys.readouterr().err
 
     # --bundle runs the exported classifier in onnxruntime and says so; a bundle of another task is refused
     from export.exporter import export

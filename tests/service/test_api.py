@@ -263,24 +263,53 @@ def test_complete_builds_the_training_input_octree_with_and_without_normals(clie
     from model.nn.tensors import OctreeTensors
     from model.octree import scan_frame, scan_octree, validate
     from model.octree.batch import split_octree
+    from model.octree.fuse import keep_scan
 
     model, cfg, _ = exported("completion-aocnn")
     pts = partial_cloud(clouds)[::4]
     normals = clouds[-1][1][clouds[-1][0][:, 0] < np.quantile(clouds[-1][0][:, 0], 0.7)][::4]
     for name, data, given in (("scan.npz", _npz(pts, normals), normals), ("scan.npy", _npy(pts), None)):
-        r = client.post("/v1/complete?format=ply", files={"points": (name, data)})
-        assert r.status_code == 200, r.text
-        got = trimesh.load(io.BytesIO(r.content), file_type="ply", process=False)
         tree = scan_octree(validate(pts, given), cfg.depth)
         with torch.no_grad():
             latent = model.encoder(OctreeTensors.from_octree(tree)).numpy()
         out = split_octree(decode(TorchSteps(model.decoder), latent), neighbors=False)[0]
         out.normalizations = [scan_frame(pts)]
-        m = surface_mesh(out)
-        want = trimesh.Trimesh(m.vertices, m.faces, process=False)
-        assert len(want.faces) > 0 and np.allclose(got.bounds, want.bounds, atol=1e-3 * np.ptp(pts, 0).max())
-        assert got.area == pytest.approx(want.area, rel=1e-3)
-        assert r.headers["x-surface"] == "patches" and r.headers["x-mesh-closed"] == "false"     # the default
+        for query, want_tree in (("", keep_scan(out, tree)), ("&keep_scan=false", out)):   # the default first
+            r = client.post(f"/v1/complete?format=ply{query}", files={"points": (name, data)})
+            assert r.status_code == 200, r.text
+            assert r.headers["x-keep-scan"] == ("false" if query else "true")
+            got = trimesh.load(io.BytesIO(r.content), file_type="ply", process=False)
+            m = surface_mesh(want_tree)
+            want = trimesh.Trimesh(m.vertices, m.faces, process=False)
+            assert len(want.faces) > 0 and np.allclose(got.bounds, want.bounds, atol=1e-3 * np.ptp(pts, 0).max())
+            assert got.area == pytest.approx(want.area, rel=1e-3)
+            assert r.headers["x-surface"] == "patches" and r.headers["x-mesh-closed"] == "false"  # the default
+
+
+def test_complete_decodes_with_the_bundles_keep_scan_bias_only_when_it_keeps_the_scan(models_dir, exported, clouds,
+                                                                                     tmp_path):
+    """A bias far beyond any logit empties every decoded octant: the default answer is then the
+    scan's own octree, leaf for leaf; keep_scan=false is the network's output, without the bias."""
+    import json
+    import shutil
+
+    from model.octree import scan_octree, validate
+
+    _, cfg, _ = exported("completion-aocnn")
+    root = tmp_path / "models"
+    shutil.copytree(models_dir, root)
+    meta = json.loads((root / "completion" / "model.json").read_text())
+    meta["output"]["keep_scan"] = {"empty_bias": {str(d): 1e4 for d in range(2, cfg.depth + 1)}}
+    (root / "completion" / "model.json").write_text(json.dumps(meta))
+    pts = partial_cloud(clouds)[::4]
+    scan = scan_octree(validate(pts, None), cfg.depth)
+    want = ",".join(f"{d}:{n}" for d, n in enumerate(scan.leaves_per_depth()) if n)
+    with make_client(root) as c:
+        kept = c.post("/v1/complete?format=ply", files={"points": ("scan.npy", _npy(pts))})
+        plain = c.post("/v1/complete?format=ply&keep_scan=false", files={"points": ("scan.npy", _npy(pts))})
+    assert kept.status_code == plain.status_code == 200, (kept.text, plain.text)
+    assert kept.headers["x-octree-leaves"] == want
+    assert plain.headers["x-octree-leaves"] != want and int(plain.headers["x-mesh-faces"]) > 0
 
 
 @pytest.mark.parametrize("accept, fmt", [
