@@ -121,14 +121,16 @@ def keep_scan_candidates(depth: int) -> list[dict[int, float]]:
                    for b in KEEP_SCAN_BIASES]
 
 
-def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int = 8, seed: int = 0) -> dict:
+def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int = 8, seed: int = 0,
+                        limit: int | None = None, resolution: int = 128) -> dict:
     """Choose the empty-class bias a completion decodes with when its output keeps the scan, by the
     category-mean Chamfer distance of the fused outputs on ``split``, and record it with the run
     (model.json's ``keep_scan`` of a checkpoint folder, else keep_scan.json of the run folder).
 
     Fused with its scan, the network's output only counts where the scan has no points, so the
     octants it is unsure of there cost more than they add: a bias towards *empty* at the finer
-    depths trades a little of the missing part for far fewer surfaces the shape does not have."""
+    depths trades a little of the missing part for far fewer surfaces the shape does not have.
+    ``limit``: the first shapes of the split only; ``resolution``: the patch sampling grid."""
     from .evaluate import decoded_points
     from .octree.metrics import chamfer_distance
     from .train.completion import truth_view
@@ -140,7 +142,7 @@ def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int
         raise ValueError("--keep-scan calibrates an octree completion model")
     cfg.data = data
     task = TASKS[cfg.task]
-    dataset = task.dataset(cfg, split, seed, points=20_000)
+    dataset = task.dataset(cfg, split, seed, points=20_000, limit=limit)
     candidates = keep_scan_candidates(cfg.depth)
     scores: list[dict[str, list[float]]] = [{} for _ in candidates]
     floor: dict[str, list[float]] = {}
@@ -153,13 +155,13 @@ def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int
             sample = dataset.samples[i]
             floor.setdefault(sample.category, []).append(chamfer_distance(sample.points, sample.partial) * 1e3)
         for c, bias in enumerate(candidates):
-            for i, (pts, _) in zip(idx, decoded_points(model, latent, None, 128, seed, scans=scans, empty_bias=bias)):
+            for i, (pts, _) in zip(idx, decoded_points(model, latent, None, resolution, seed, scans=scans, empty_bias=bias)):
                 sample = dataset.samples[i]
                 scores[c].setdefault(sample.category, []).append(
                     chamfer_distance(sample.points, truth_view(sample, pts)) * 1e3)
     means = [float(np.mean([np.mean(v) for v in sc.values()])) for sc in scores]
     best = int(np.argmin(means))
-    report = {"empty_bias": {str(d): b for d, b in candidates[best].items()}, "split": split,
+    report = {"empty_bias": {str(d): b for d, b in candidates[best].items()}, "split": split, "resolution": resolution,
               "shapes": len(dataset), "chamfer_x1e3_category_mean": round(means[best], 4),
               "scan_chamfer_x1e3_category_mean": round(float(np.mean([np.mean(v) for v in floor.values()])), 4),
               "candidates": [{"empty_bias": {str(d): b for d, b in c.items()}, "chamfer_x1e3_category_mean": round(m, 4)}
@@ -186,10 +188,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keep-scan", action="store_true",
                     help="completion: instead of the split biases, choose the empty-class bias for outputs that "
                          "keep the scan and record it with the run (model.json or keep_scan.json)")
+    ap.add_argument("--limit", type=int, default=None, help="--keep-scan: the first N shapes of the split only")
+    ap.add_argument("--resolution", type=int, default=128,
+                    help="--keep-scan: patch sampling grid, a power of two (default 128, the paper's)")
     args = ap.parse_args(argv)
     try:
+        if args.limit is not None and args.limit < 1:
+            raise ValueError("--limit must be at least 1")
         if args.keep_scan:
-            report = calibrate_keep_scan(args.run, args.data, args.split)
+            report = calibrate_keep_scan(args.run, args.data, args.split, limit=args.limit,
+                                         resolution=args.resolution)
         elif args.out is None:
             raise ValueError("--out is required (or --keep-scan)")
         else:

@@ -97,10 +97,12 @@ def test_completion_training_resumes_and_evaluates_against_the_input_floor(scan_
     from export.exporter import export
     from model.calibrate import keep_scan_candidates, main as calibrate_main
 
-    assert calibrate_main([str(tmp_path / "a"), "--data", str(scan_data), "--split", "train", "--keep-scan"]) == 0
+    assert calibrate_main([str(tmp_path / "a"), "--data", str(scan_data), "--split", "train", "--keep-scan",
+                           "--limit", "2", "--resolution", "32"]) == 0
     report = json.loads((tmp_path / "a" / "keep_scan.json").read_text())
     scores = [c["chamfer_x1e3_category_mean"] for c in report["candidates"]]
     assert len(scores) == len(keep_scan_candidates(5)) and report["chamfer_x1e3_category_mean"] == min(scores)
+    assert report["shapes"] == 2 and report["resolution"] == 32
     chosen = report["candidates"][scores.index(min(scores))]["empty_bias"]
     assert report["empty_bias"] == chosen
     again = tmp_path / "again.json"
