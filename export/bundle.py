@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from model.decode import empty_bias_of
 from model.files import sha256_file
 from model.octree.build import MAX_BUILD_DEPTH
 from model.preprocess import ImageSpec, MaskSpec
@@ -77,6 +78,9 @@ class Bundle:
     categories: list[str]
     graphs: dict[str, GraphSpec]
     meta: dict = field(repr=False)        # the whole model.json (export settings, provenance, evaluation)
+    keep_scan_bias: dict[int, float] = field(default_factory=dict)
+    """The empty-class bias per depth a completion decodes with when its output keeps the scan
+    (``output.keep_scan``, chosen on the validation split by ``python -m model.calibrate --keep-scan``)."""
 
     def file(self, graph: str) -> Path:
         return self.path / self.graphs[graph].file
@@ -93,11 +97,6 @@ class Bundle:
         if "foreground" not in self.graphs or not isinstance(fg, dict):
             return None
         return MaskSpec.from_dict(fg)
-
-    def keep_scan_bias(self) -> dict[int, float]:
-        """The empty-class bias per depth a completion decodes with when its output keeps the
-        scan (chosen on the validation split by ``python -m model.calibrate --keep-scan``); {} if none."""
-        return {int(d): float(b) for d, b in self.output.get("keep_scan", {}).get("empty_bias", {}).items()}
 
     def checksums(self) -> dict[str, str]:
         return {g.file: g.sha256 for g in self.graphs.values()}
@@ -167,19 +166,21 @@ def parse_manifest(meta: dict, path: Path) -> Bundle:
             raise BundleError(f"{gw}: file must be a plain .onnx file name inside the bundle, got {file!r}")
         graphs[name] = GraphSpec(name, file, _get(g, "sha256", str, gw), _io(g.get("inputs"), f"{gw}.inputs"),
                                  _io(g.get("outputs"), f"{gw}.outputs"))
-    keep = _get(meta, "output", dict, where).get("keep_scan", {})
-    bias = keep.get("empty_bias", {}) if isinstance(keep, dict) else None
-    if not isinstance(bias, dict) or not all(
-            str(d).isdigit() and int(d) <= octree.depth and isinstance(b, (int, float)) and math.isfinite(b)
-            for d, b in bias.items()):
+    output = _get(meta, "output", dict, where)
+    try:
+        keep_scan_bias = empty_bias_of(output.get("keep_scan"))
+    except ValueError:
+        keep_scan_bias = None
+    if keep_scan_bias is None or any(d > octree.depth for d in keep_scan_bias):
         raise BundleError(f"{where}: output.keep_scan.empty_bias must map depths (<= {octree.depth}) to numbers")
     missing = [g for g in required_graphs(task, octree) if g not in graphs]
     if missing:
         raise BundleError(f"{where}: a {task} bundle needs the graphs {', '.join(missing)}")
     return Bundle(path=path, format=fmt, task=task, name=_get(meta, "name", str, where),
                   version=_get(meta, "version", str, where), octree=octree,
-                  input=_get(meta, "input", dict, where), output=_get(meta, "output", dict, where),
-                  categories=list(meta.get("categories") or []), graphs=graphs, meta=meta)
+                  input=_get(meta, "input", dict, where), output=output,
+                  categories=list(meta.get("categories") or []), graphs=graphs, meta=meta,
+                  keep_scan_bias=keep_scan_bias)
 
 
 def load_bundle(path: str | Path) -> Bundle:

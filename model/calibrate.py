@@ -30,7 +30,10 @@ from .networks import OctreeDecoder
 from .nn.tensors import OctreeTensors
 from .octree import SPLIT
 from .checkpoint import load_model
-from .train.config import load_checkpoint
+from .evaluate import decoded_points
+from .octree.metrics import chamfer_distance
+from .train.completion import truth_view
+from .train.config import KEEP_SCAN_FILE, load_checkpoint
 from .train.tasks import TASKS
 from .cli import command_parser
 
@@ -131,11 +134,6 @@ def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int
     octants it is unsure of there cost more than they add: a bias towards *empty* at the finer
     depths trades a little of the missing part for far fewer surfaces the shape does not have.
     ``limit``: the first shapes of the split only; ``resolution``: the patch sampling grid."""
-    from .evaluate import decoded_points
-    from .octree.metrics import chamfer_distance
-    from .train.completion import truth_view
-    from .train.config import KEEP_SCAN_FILE
-
     loaded = load_model(run)
     model, cfg = loaded.model, loaded.config
     if cfg.task != "completion" or not isinstance(model.decoder, OctreeDecoder):
@@ -167,11 +165,8 @@ def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int
               "candidates": [{"empty_bias": {str(d): b for d, b in c.items()}, "chamfer_x1e3_category_mean": round(m, 4)}
                              for c, m in zip(candidates, means)]}
     path = Path(run)
-    if (path / "model.json").is_file():
-        import json
-        meta = json.loads((path / "model.json").read_text())
-        meta["keep_scan"] = report
-        write_atomic(path / "model.json", json_text(meta).encode())
+    if (path / "model.json").is_file():           # a checkpoint folder: loaded.meta is its model.json
+        write_atomic(path / "model.json", json_text({**loaded.meta, "keep_scan": report}).encode())
     else:
         write_atomic(path / KEEP_SCAN_FILE, json_text(report).encode())
     return report

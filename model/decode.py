@@ -84,6 +84,17 @@ def _level(depth: int, key: np.ndarray, parent: np.ndarray) -> OctreeLevel:
                        error=np.full(n, np.nan, np.float32), npoints=np.zeros(n, np.int32))
 
 
+def empty_bias_of(keep_scan: Any) -> dict[int, float]:
+    """The ``empty_bias`` of a recorded keep_scan setting (``{"empty_bias": {"5": 2.0, ...}, ...}``:
+    a checkpoint's model.json ``keep_scan``, a bundle manifest's ``output.keep_scan``); {} for
+    none.  ValueError if it is not a mapping of depths to finite numbers."""
+    bias = (keep_scan or {}).get("empty_bias", {}) if isinstance(keep_scan, (dict, type(None))) else None
+    if not isinstance(bias, dict) or not all(
+            str(d).isdigit() and isinstance(b, (int, float)) and np.isfinite(b) for d, b in bias.items()):
+        raise ValueError("keep_scan.empty_bias must map depths to numbers")
+    return {int(d): float(b) for d, b in bias.items()}
+
+
 def status_to_labels(logits: np.ndarray, classes: int, last: bool) -> np.ndarray:
     """Octree labels from status logits: non-empty splits (or is a leaf at the max depth)."""
     status = np.argmax(logits, axis=1)

@@ -40,7 +40,7 @@ from scipy.spatial import cKDTree
 
 from .align import icp
 from .checkpoint import load_model
-from .decode import decode
+from .decode import decode, empty_bias_of
 from .files import json_text, write_atomic
 from .networks import AtlasNetDecoder, OctreeDecoder, PointSetDecoder, TorchSteps
 from .nn.tensors import OctreeTensors
@@ -181,11 +181,6 @@ def _missing(sample, pts: np.ndarray, depth: int) -> dict:
             "input_missing_x1e3": mean_squared_distance(part, sample.partial) * 1e3}
 
 
-def keep_scan_bias(meta: dict) -> dict[int, float]:
-    """The empty-class bias per depth a run or checkpoint decodes keep_scan outputs with ({} if none)."""
-    return {int(d): float(b) for d, b in (meta.get("keep_scan") or {}).get("empty_bias", {}).items()}
-
-
 def _mean_or_none(values: list[float]) -> float | None:
     return float(np.mean(values)) if values else None
 
@@ -242,7 +237,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     completion = cfg.task == "completion"
     fill_bias = None
     if keep_scan:     # the decode setting chosen for keep_scan outputs: the bundle's when it is served
-        fill_bias = runtime.bundle.keep_scan_bias() if runtime is not None else keep_scan_bias(loaded.meta)
+        fill_bias = runtime.bundle.keep_scan_bias if runtime is not None else empty_bias_of(loaded.meta.get("keep_scan"))
     extra = {"normals": normals} if completion else {}
     records = task.dataset(cfg, split, seed, points=20_000, limit=limit, **extra)
     metrics = ("chamfer_x1e3", "chamfer_icp_x1e3") if align else ("chamfer_x1e3",)

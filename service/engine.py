@@ -226,7 +226,7 @@ class Engine:
         t = time.perf_counter()
         latent = encode([x for _, x in ready])
         _share([items[i] for i, _ in ready], "encoder", time.perf_counter() - t)
-        bias = served.bundle.keep_scan_bias()        # the decode setting of outputs that keep the scan
+        bias = served.bundle.keep_scan_bias        # the decode setting of outputs that keep the scan
         for depth, keep in sorted({(items[i].depth, items[i].keep_scan) for i, _ in ready}):
             group = [k for k, (i, _) in enumerate(ready) if (items[i].depth, items[i].keep_scan) == (depth, keep)]
             t = time.perf_counter()

@@ -110,7 +110,7 @@ def test_completion_training_resumes_and_evaluates_against_the_input_floor(scan_
                           "--resolution", "32", "--keep-scan", "--out", str(again)]) == 0
     assert json.loads(again.read_text())["keep_scan_empty_bias"] == chosen
     export(tmp_path / "a", tmp_path / "completion-bundle")
-    assert load_bundle(tmp_path / "completion-bundle").keep_scan_bias() == {int(d): b for d, b in chosen.items()}
+    assert load_bundle(tmp_path / "completion-bundle").keep_scan_bias == {int(d): b for d, b in chosen.items()}
     assert [r["input_chamfer_x1e3"] for r in kept["per_shape"]] == [r["input_chamfer_x1e3"] for r in plain["per_shape"]]
 
 
