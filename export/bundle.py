@@ -21,7 +21,9 @@ from model.files import sha256_file
 from model.octree.build import MAX_BUILD_DEPTH
 from model.preprocess import ImageSpec, MaskSpec
 
-BUNDLE_FORMAT = 1
+BUNDLE_FORMAT = 2
+"""The newest format this software reads; 2 adds guided decoders (``octree.guided``), which a
+format-1 reader could not run.  Bundles without them are written as format 1."""
 """Version of the bundle layout written by this code; newer bundles are refused."""
 MANIFEST = "model.json"
 TASKS = ("image-to-shape", "completion", "autoencoder", "classify")
@@ -61,6 +63,8 @@ class OctreeSpec:
     latent: int
     threshold: float | None = None       # build threshold (finest voxels) of the encoder's input octrees
     signal: str = "all"                  # encoder signal: every depth ('all') or the 'finest'
+    guided: bool = False                 # output-guided skip connections: the encoder also outputs
+                                         # skip_d and each decoder_predict_d reads skip, skip_index
 
 
 @dataclass(frozen=True)
@@ -153,7 +157,8 @@ def parse_manifest(meta: dict, path: Path) -> Bundle:
     octree = OctreeSpec(depth=_get(o, "depth", int, ow), full_depth=_get(o, "full_depth", int, ow),
                         adaptive_depth=_get(o, "adaptive_depth", int, ow), adaptive=_get(o, "adaptive", bool, ow),
                         classes=classes, planes=tuple(_get(o, "planes", list, ow)), latent=_get(o, "latent", int, ow),
-                        threshold=None if threshold is None else float(threshold), signal=o.get("signal", "all"))
+                        threshold=None if threshold is None else float(threshold), signal=o.get("signal", "all"),
+                        guided=o.get("guided", False))
     if not 0 <= octree.full_depth <= octree.adaptive_depth <= octree.depth <= MAX_BUILD_DEPTH:
         raise BundleError(f"{ow}: need 0 <= full_depth <= adaptive_depth <= depth <= {MAX_BUILD_DEPTH}")
     if threshold is not None and not (isinstance(threshold, (int, float)) and math.isfinite(threshold) and threshold > 0):
@@ -176,11 +181,28 @@ def parse_manifest(meta: dict, path: Path) -> Bundle:
     missing = [g for g in required_graphs(task, octree) if g not in graphs]
     if missing:
         raise BundleError(f"{where}: a {task} bundle needs the graphs {', '.join(missing)}")
+    if not isinstance(octree.guided, bool):
+        raise BundleError(f"{ow}: guided must be true or false")
+    if octree.guided:
+        _check_guided(graphs, octree, where)
     return Bundle(path=path, format=fmt, task=task, name=_get(meta, "name", str, where),
                   version=_get(meta, "version", str, where), octree=octree,
                   input=_get(meta, "input", dict, where), output=output,
                   categories=list(meta.get("categories") or []), graphs=graphs, meta=meta,
                   keep_scan_bias=keep_scan_bias)
+
+
+def _check_guided(graphs: dict[str, GraphSpec], octree: OctreeSpec, where: str) -> None:
+    """A guided bundle's graphs pass the skip features: the octree encoder outputs ``skip_d`` for
+    every decoded depth d and each ``decoder_predict_d`` reads ``skip`` and ``skip_index``."""
+    depths = range(octree.full_depth, octree.depth + 1)
+    encoder = graphs.get("octree_encoder")
+    if encoder is None or any(f"skip_{d}" not in encoder.outputs for d in depths):
+        raise BundleError(f"{where}: a guided bundle's octree_encoder must output skip_{octree.full_depth}"
+                          f"..skip_{octree.depth}")
+    for d in depths:
+        if not {"skip", "skip_index"} <= set(graphs[f"decoder_predict_{d}"].inputs):
+            raise BundleError(f"{where}: a guided bundle's decoder_predict_{d} must read skip and skip_index")
 
 
 def load_bundle(path: str | Path) -> Bundle:

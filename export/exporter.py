@@ -23,7 +23,8 @@ from model.data.shapes import CATEGORIES
 from model.decode import decode
 from model.files import UMASK, json_text, sha256_file, write_atomic
 from model.networks import ARCHS, CLASSIFIER_ARCHS, OctreeDecoder, TorchSteps
-from model.octree import DEFAULT_THRESHOLD
+from model.octree import DEFAULT_THRESHOLD, Octree, build_octree, validate
+from model.octree.batch import merge_octrees
 from model.octree.pointcloud import SCAN_FRAME_MARGIN
 from model.preprocess import MaskSpec
 from model.checkpoint import Loaded, load_model
@@ -68,6 +69,8 @@ def _octree_spec(src: Loaded) -> dict:
     adaptive = _adaptive_input(cfg)
     spec = {"adaptive": adaptive, "latent": cfg.latent, "threshold": DEFAULT_THRESHOLD if adaptive else None,
             "signal": getattr(getattr(src.model, "encoder", None), "signal", "all")}
+    if getattr(src.model, "guided", False):
+        spec["guided"] = True
     if cfg.task == "classify":          # no decoder: the encoder's depths only
         enc = src.model.encoder
         return {"depth": enc.depth, "full_depth": enc.full_depth, "adaptive_depth": min(4, enc.depth),
@@ -118,7 +121,7 @@ def export_graphs(src: Loaded) -> list[G.Graph]:
     if cfg.task == "image":
         out.insert(0, G.image_encoder_graph(model.encoder, cfg.image_size, cfg.latent))
     else:
-        out.insert(0, G.encoder_graph(model.encoder, cfg.latent))
+        out.insert(0, G.encoder_graph(model.encoder, cfg.latent, guided=model.decoder.guided))
     return out
 
 
@@ -136,9 +139,24 @@ def foreground_check(runtime: Runtime, foreground: Loaded, seed: int = 0) -> dic
     return {"foreground_logit_max_abs_diff": diff, "foreground_pixel_agreement": agree}
 
 
+def probe_octrees(depth: int, batch: int = 3, seed: int = 0) -> Octree:
+    """``batch`` merged adaptive octrees (with neighbour tables) of random ellipsoids' half
+    surfaces, as a scanner sees them: inputs for checking graphs that read octrees."""
+    rng = np.random.default_rng(seed)
+    trees = []
+    for _ in range(batch):
+        n = rng.normal(size=(4000, 3))
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        n = n[n[:, 2] > -0.2]                                  # the side a scanner saw
+        axes = rng.uniform(0.5, 1.0, 3)
+        normals = n / axes
+        trees.append(build_octree(validate(n * axes, normals), depth, neighbors=False))
+    return merge_octrees(trees, neighbors=True)
+
+
 def self_check(bundle_dir: Path, src: Loaded, batch: int = 3, seed: int = 0, foreground: Loaded | None = None) -> dict:
     """Decode (classify: score) random latent codes with onnxruntime and torch; raise if they
-    disagree.  Returns the figures: max |difference| of planes on the common leaves and label
+    disagree (a guided decoder: the codes and features of :func:`probe_octrees`, encoded by both).  Returns the figures: max |difference| of planes on the common leaves and label
     agreement (classify: of the probabilities)."""
     runtime = Runtime(load_bundle(bundle_dir), threads=1)
     latent = np.random.default_rng(seed).uniform(-1, 1, (batch, src.config.latent)).astype(np.float32)
@@ -150,8 +168,17 @@ def self_check(bundle_dir: Path, src: Loaded, batch: int = 3, seed: int = 0, for
         if diff > 1e-5:
             raise BundleError(f"{bundle_dir}: onnxruntime and torch probabilities differ by {diff:.2e}")
         return {"latents": batch, "probability_max_abs_diff": diff}
-    a = runtime.decode(latent)
-    b = decode(TorchSteps(src.model.decoder), latent, src.model.decoder.full_depth, src.model.decoder.adaptive_depth)
+    dec = src.model.decoder
+    guide_a = guide_b = None
+    if dec.guided:        # a guided decoder reads its input: encode real octrees with both
+        octree = probe_octrees(dec.depth, batch, seed)
+        latent, guide_a = runtime.encode_scan(octree)
+        with torch.no_grad():
+            theirs, guide_b = src.model.encode_octree(octree)
+        if float(np.abs(latent - theirs.numpy()).max()) > 1e-4:
+            raise BundleError(f"{bundle_dir}: onnxruntime and torch latent codes differ")
+    a = runtime.decode(latent, guide=guide_a)
+    b = decode(TorchSteps(dec), latent, dec.full_depth, dec.adaptive_depth, guide=guide_b)
     same = sum(int(np.sum(la.label == lb.label)) for la, lb in zip(a.levels, b.levels)
                if len(la) == len(lb) and np.array_equal(la.key, lb.key))
     total = sum(len(lb) for lb in b.levels)
@@ -197,7 +224,7 @@ def export(source: str | Path, out: str | Path, name: str | None = None, force: 
         inp, outp = _io_spec(src, task, fg)
         weights = src.meta.get("weights_sha256") or (specs.get("decoder_start") or specs["octree_encoder"])["sha256"]
         meta = {
-            "format": BUNDLE_FORMAT, "task": task, "name": name or task,
+            "format": BUNDLE_FORMAT if getattr(src.model, "guided", False) else 1, "task": task, "name": name or task,
             "version": f"{importlib.metadata.version('adaptive-ocnn')}+{weights[:12]}",
             "octree": _octree_spec(src), "input": inp, "output": outp,
             "categories": list(src.config.categories or CATEGORIES),

@@ -4,10 +4,12 @@ Graphs and their inputs/outputs (names as in :mod:`export.bundle`'s spec):
 
 - ``image_encoder``: image (B, 3, S, S) -> latent (B, L).
 - ``octree_encoder``: per depth d of the encoder, signal_d (N_d, 4), neighbors_d (N_d, 27) int64,
-  and split_d (K_d,) int64 for d < depth -> latent (B, L).
+  and split_d (K_d,) int64 for d < depth -> latent (B, L) [, skip_d (N_d, C_d) per depth d when
+  the decoder is guided].
 - ``decoder_start``: latent (B, L) -> features (64 B, C).
-- ``decoder_predict_d``: features (N, C), neighbors (N, 27) int64 -> features (N, C),
-  logits (N, classes) [, planes (N, 4)].
+- ``decoder_predict_d``: features (N, C), neighbors (N, 27) int64 [, skip (M, C) the input's
+  features and skip_index (N,) int64 each octant's row in them, M for none: guided decoders]
+  -> features (N, C), logits (N, classes) [, planes (N, 4)].
 - ``decoder_expand_d``: features (N, C), split (K,) int64 -> features (8 K, C').
 
 Index tables come from the NumPy octree core; no graph derives them.  Octree ops are
@@ -65,8 +67,16 @@ class _Predict(nn.Module):
         self.decoder, self.depth = decoder, depth
 
     def forward(self, features, neighbors):
-        x, logits, plane = self.decoder.predict(self.depth, features, neighbors)
+        return self.outputs(features, neighbors)
+
+    def outputs(self, *args):
+        x, logits, plane = self.decoder.predict(self.depth, *args)
         return (x, logits) if plane is None else (x, logits, plane)
+
+
+class _GuidedPredict(_Predict):
+    def forward(self, features, neighbors, skip, skip_index):
+        return self.outputs(features, neighbors, skip, skip_index)
 
 
 class _Expand(nn.Module):
@@ -79,9 +89,9 @@ class _Expand(nn.Module):
 
 
 class _Encoder(nn.Module):
-    def __init__(self, encoder: OctreeEncoder):
+    def __init__(self, encoder: OctreeEncoder, guided: bool = False):
         super().__init__()
-        self.encoder = encoder
+        self.encoder, self.guided = encoder, guided
         self.depths = list(range(encoder.full_depth, encoder.depth + 1))
 
     def forward(self, *tables):
@@ -93,7 +103,8 @@ class _Encoder(nn.Module):
             neighbors[d] = next(it)
             if d < self.encoder.depth:
                 splits[d] = next(it)
-        return self.encoder.encode(signals, neighbors, splits)
+        latent, features = self.encoder.encode_features(signals, neighbors, splits)
+        return (latent, *(features[d] for d in self.depths)) if self.guided else latent
 
     def uses_signal(self, d: int) -> bool:
         return self.encoder.signal == "all" or d == self.encoder.depth
@@ -172,9 +183,13 @@ def decoder_graphs(decoder: OctreeDecoder, latent: int) -> list[Graph]:
         outs = {"features_out": ("float32", ("nodes", ch[d])), "logits": ("float32", ("nodes", dec.classes(d)))}
         if dec.has_plane(d):
             outs["planes"] = ("float32", ("nodes", 4))
-        graphs.append(_graph(f"decoder_predict_{d}", _Predict(dec, d), (x, _table(n, g)),
-                             {"features": ("float32", ("nodes", ch[d])), "neighbors": ("int64", ("nodes", KERNEL))},
-                             outs))
+        ins = {"features": ("float32", ("nodes", ch[d])), "neighbors": ("int64", ("nodes", KERNEL))}
+        args = (x, _table(n, g))
+        if dec.guided:        # the input's features at this depth, and each octant's row in them (M: none)
+            ins.update(skip=("float32", ("inputs", ch[d])), skip_index=("int64", ("nodes",)))
+            args += (torch.rand(96, ch[d], generator=g), torch.randint(0, 97, (n,), generator=g))
+        graphs.append(_graph(f"decoder_predict_{d}", (_GuidedPredict if dec.guided else _Predict)(dec, d),
+                             args, ins, outs))
         if d < dec.depth:
             graphs.append(_graph(f"decoder_expand_{d}", _Expand(dec, d), (x, torch.tensor([0, 3, 5, 100])),
                                  {"features": ("float32", ("nodes", ch[d])), "split": ("int64", ("splits",))},
@@ -182,9 +197,10 @@ def decoder_graphs(decoder: OctreeDecoder, latent: int) -> list[Graph]:
     return graphs
 
 
-def encoder_graph(encoder: OctreeEncoder, latent: int) -> Graph:
-    """The octree encoder on per-depth tables (BN folded); N_2 = 64 B, N_{d+1} = 8 K_d."""
-    wrapper = _Encoder(fold_batchnorm(encoder))
+def encoder_graph(encoder: OctreeEncoder, latent: int, guided: bool = False) -> Graph:
+    """The octree encoder on per-depth tables (BN folded); N_2 = 64 B, N_{d+1} = 8 K_d.  ``guided``:
+    it also outputs the features of every depth's octants (skip_d, for a guided decoder)."""
+    wrapper = _Encoder(fold_batchnorm(encoder), guided)
     full, depth = wrapper.encoder.full_depth, wrapper.encoder.depth
     g = torch.Generator().manual_seed(0)
     ins, args = {}, []
@@ -199,7 +215,11 @@ def encoder_graph(encoder: OctreeEncoder, latent: int) -> Graph:
         if d < depth:
             ins[f"split_{d}"] = ("int64", (f"splits_{d}",))
             args.append(torch.arange(0, n[d], 4))
-    return _graph("octree_encoder", wrapper, tuple(args), ins, {"latent": ("float32", ("batch", latent))})
+    outs = {"latent": ("float32", ("batch", latent))}
+    if guided:
+        outs.update({f"skip_{d}": ("float32", ("64*batch" if d == full else f"8*splits_{d - 1}",
+                                               wrapper.encoder.channels[d])) for d in wrapper.depths})
+    return _graph("octree_encoder", wrapper, tuple(args), ins, outs)
 
 
 def image_encoder_graph(encoder: nn.Module, size: int, latent: int) -> Graph:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from model.decode import decode
+from model.decode import Guide, decode
 from model.octree import Octree
 from model.preprocess import mask_input, mask_output
 
@@ -122,7 +122,16 @@ class Runtime:
 
     def encode_octree(self, octree: Octree) -> np.ndarray:
         """Latent codes (B, L) of a (batched) octree built with the bundle's octree settings."""
-        return self.run("octree_encoder", octree_feeds(octree, self.bundle.graphs["octree_encoder"]))[0]
+        return self.encode_scan(octree)[0]
+
+    def encode_scan(self, octree: Octree) -> tuple[np.ndarray, Guide | None]:
+        """Latent codes (B, L) of a (batched) octree and, for a guided bundle, the :class:`Guide`
+        its decoder reads (the encoder's features of every depth's octants)."""
+        out = self.run("octree_encoder", octree_feeds(octree, self.bundle.graphs["octree_encoder"]))
+        if not self.bundle.octree.guided:
+            return out[0], None
+        names = [o.name for o in self.sessions["octree_encoder"].get_outputs()]
+        return out[0], Guide.of(octree, {int(n.rsplit("_", 1)[1]): x for n, x in zip(names, out) if n.startswith("skip_")})
 
     def classify(self, latent: np.ndarray) -> np.ndarray:
         """Class probabilities (B, C) of latent codes (B, L) (a classify bundle's head)."""
@@ -132,11 +141,15 @@ class Runtime:
         return OrtSteps(self, depth)
 
     def decode(self, latent: np.ndarray, depth: int | None = None,
-               empty_bias: dict[int, float] | None = None) -> Octree:
+               empty_bias: dict[int, float] | None = None, guide: Guide | None = None) -> Octree:
         """Grow the octrees of latent codes (B, L) down to ``depth`` (default: the bundle's);
-        ``empty_bias`` as :func:`model.decode.decode`'s."""
+        ``empty_bias`` and ``guide`` (a guided bundle's: :meth:`encode_scan`) as
+        :func:`model.decode.decode`'s."""
         o = self.bundle.octree
-        return decode(self.steps(depth), np.asarray(latent, np.float32), o.full_depth, o.adaptive_depth, empty_bias)
+        if o.guided and guide is None:
+            raise ValueError("a guided bundle decodes with the guide of its input (encode_scan)")
+        return decode(self.steps(depth), np.asarray(latent, np.float32), o.full_depth, o.adaptive_depth, empty_bias,
+                      guide)
 
 
 def octree_feeds(octree: Octree, spec: GraphSpec) -> dict[str, np.ndarray]:
@@ -172,9 +185,12 @@ class OrtSteps:
     def start(self, latent: np.ndarray) -> np.ndarray:
         return self.runtime.run("decoder_start", {"latent": np.ascontiguousarray(latent, dtype=np.float32)})[0]
 
-    def predict(self, depth: int, features: np.ndarray, neighbors: np.ndarray):
-        out = self.runtime.run(f"decoder_predict_{depth}",
-                               {"features": features, "neighbors": neighbors.astype(np.int64)})
+    def predict(self, depth: int, features: np.ndarray, neighbors: np.ndarray, skip: np.ndarray | None = None,
+                skip_index: np.ndarray | None = None):
+        feeds = {"features": features, "neighbors": neighbors.astype(np.int64)}
+        if skip is not None:
+            feeds.update(skip=skip, skip_index=skip_index.astype(np.int64))
+        out = self.runtime.run(f"decoder_predict_{depth}", feeds)
         return out[0], out[1], out[2] if len(out) > 2 else None
 
     def expand(self, depth: int, features: np.ndarray, split: np.ndarray) -> np.ndarray:

@@ -27,6 +27,7 @@ import torch
 
 from .files import atomic_path, json_text, write_atomic
 from .networks import OctreeDecoder
+from .networks.decoder import teacher_skips
 from .nn.tensors import OctreeTensors
 from .octree import SPLIT
 from .checkpoint import load_model
@@ -34,7 +35,7 @@ from .evaluate import decoded_points
 from .octree.metrics import chamfer_distance
 from .train.completion import truth_view
 from .train.config import KEEP_SCAN_FILE, load_checkpoint
-from .train.tasks import TASKS
+from .train.tasks import TASKS, encode_with_guide
 from .cli import command_parser
 
 BIASES = np.round(np.arange(-4.0, 4.0001, 0.05), 2)
@@ -44,14 +45,14 @@ def split_logits(model, cfg, dataset, batch_size: int = 8) -> dict[int, tuple[np
     """Teacher-forced status logits and true labels per 3-class depth, over a whole split."""
     dec: OctreeDecoder = model.decoder
     out: dict[int, list] = {}
-    task = TASKS[cfg.task]
     with torch.no_grad():
         for s in range(0, len(dataset), batch_size):
             idx = np.arange(s, min(len(dataset), s + batch_size))
             octree, _ = dataset.batch(idx)
             tensors = OctreeTensors.from_octree(octree)
-            latent = task.encode(model, cfg, dataset, idx)
-            for (logits, _), d in zip(dec(latent, tensors), range(dec.full_depth, dec.depth + 1)):
+            latent, guide = encode_with_guide(model, cfg, dataset, idx)
+            for (logits, _), d in zip(dec(latent, tensors, teacher_skips(guide, octree)),
+                                      range(dec.full_depth, dec.depth + 1)):
                 if dec.classes(d) == 3 and d < dec.depth:
                     out.setdefault(d, []).append((logits.numpy(), tensors.levels[d].label.numpy()))
     return {d: (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]))
@@ -147,13 +148,14 @@ def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int
     for s in range(0, len(dataset), batch_size):
         idx = np.arange(s, min(len(dataset), s + batch_size))
         with torch.no_grad():
-            latent = task.encode(model, cfg, dataset, idx)
+            latent, guide = encode_with_guide(model, cfg, dataset, idx)
         scans = [dataset.scan(i) for i in idx]
         for i in idx:
             sample = dataset.samples[i]
             floor.setdefault(sample.category, []).append(chamfer_distance(sample.points, sample.partial) * 1e3)
         for c, bias in enumerate(candidates):
-            for i, (pts, _) in zip(idx, decoded_points(model, latent, None, resolution, seed, scans=scans, empty_bias=bias)):
+            for i, (pts, _) in zip(idx, decoded_points(model, latent, None, resolution, seed, scans=scans, empty_bias=bias,
+                                                   guide=guide)):
                 sample = dataset.samples[i]
                 scores[c].setdefault(sample.category, []).append(
                     chamfer_distance(sample.points, truth_view(sample, pts)) * 1e3)

@@ -33,13 +33,59 @@ class DecoderSteps(Protocol):
     def start(self, latent: np.ndarray) -> Any:
         """Features of the depth-2 octants (64 per shape, in key order) from latent codes (B, L)."""
 
-    def predict(self, depth: int, features: Any, neighbors: np.ndarray
-                ) -> tuple[Any, np.ndarray, np.ndarray | None]:
+    def predict(self, depth: int, features: Any, neighbors: np.ndarray, skip: Any = None,
+                skip_index: np.ndarray | None = None) -> tuple[Any, np.ndarray, np.ndarray | None]:
         """Features after the depth's convolutions, status logits (N, classes) and planes
-        (N, 4: unit normal, d* in [-1, 1]) or None for decoders without planes."""
+        (N, 4: unit normal, d* in [-1, 1]) or None for decoders without planes.  A guided
+        decoder also takes the encoder's features of the depth (``skip``) and each octant's row
+        in them (``skip_index``, see :class:`Guide`)."""
 
     def expand(self, depth: int, features: Any, split: np.ndarray) -> Any:
         """Features of the children (8 per split octant, in slot order) of octants ``split``."""
+
+
+@dataclasses.dataclass
+class Guide:
+    """What a guided decoder (output-guided skip connections) reads of its input, per depth d
+    from the full depth: the input octree's keys (ascending, batch bits = the shape's position
+    in the decoded batch) and the encoder's features of those octants (opaque: torch or NumPy).
+
+    Invariant: ``len(keys[d]) == len(features[d])`` and both cover the same depths."""
+
+    keys: dict[int, np.ndarray]
+    features: dict[int, Any]
+
+    @classmethod
+    def of(cls, octree: Octree, features: Mapping[int, Any]) -> Guide:
+        """The guide of a (batched) input octree and its encoder's per-depth features."""
+        return cls({d: octree.levels[d].key for d in features}, dict(features))
+
+    def rows(self, depth: int, keys: np.ndarray) -> np.ndarray:
+        """Each key's row in the depth's features (the row count where the input has no octant)."""
+        return morton.lookup(self.keys[depth], keys)
+
+    def matched(self, target: Octree) -> dict[int, tuple[Any, np.ndarray]]:
+        """Per depth, the features and each ``target`` octant's row in them (teacher forcing)."""
+        return {d: (f, self.rows(d, target.levels[d].key)) for d, f in self.features.items()}
+
+    def subset(self, shapes: np.ndarray) -> Guide:
+        """The guide of shapes ``shapes`` (ascending positions) of the batch, renumbered 0.."""
+        shapes = np.asarray(shapes, dtype=np.int64)
+        keys, features = {}, {}
+        for d, k in self.keys.items():
+            batch = morton.batch_of(k)
+            rows = np.flatnonzero(np.isin(batch, shapes))
+            keys[d] = morton.with_batch(k[rows], np.searchsorted(shapes, batch[rows]))
+            features[d] = self.features[d][rows]
+        return Guide(keys, features)
+
+
+def matched_rows(source: Octree, target: Octree) -> dict[int, np.ndarray]:
+    """Per depth from the full depth, each ``target`` octant's row among ``source``'s octants of
+    the same depth, matched by key (:func:`model.octree.keys.lookup`): what a guided decoder
+    trained on ``target`` reads of the encoder's features of ``source``."""
+    return {d: morton.lookup(source.levels[d].key, target.levels[d].key)
+            for d in range(source.full_depth, min(source.depth, target.depth) + 1)}
 
 
 def full_levels(batch_size: int, full_depth: int = 2) -> list[OctreeLevel]:
@@ -108,14 +154,16 @@ def status_to_labels(logits: np.ndarray, classes: int, last: bool) -> np.ndarray
 
 
 def decode(steps: DecoderSteps, latent: np.ndarray, full_depth: int = 2,
-           adaptive_depth: int = 4, empty_bias: Mapping[int, float] | None = None) -> Octree:
+           adaptive_depth: int = 4, empty_bias: Mapping[int, float] | None = None,
+           guide: Guide | None = None) -> Octree:
     """Grow the octree of each latent code (B, L) down to ``steps.depth``.
 
     Every octant's status decides whether it is empty, a leaf with its predicted patch, or split;
     split octants hand their features to their 8 children.  ``empty_bias`` (depth -> bias) is
     added to the empty class's logit at those depths: a positive bias keeps only the octants the
     decoder is surer of (a completion fused with its scan uses it, see
-    :func:`model.octree.fuse.keep_scan`).  Returns a batched :class:`Octree` in unit-cube
+    :func:`model.octree.fuse.keep_scan`).  ``guide``: the input of a guided decoder (its octants
+    matched to the grown ones by key at every depth).  Returns a batched :class:`Octree` in unit-cube
     coordinates (see :data:`DECODED_NORMALIZATION`).
     """
     empty_bias = dict(empty_bias or {})
@@ -125,7 +173,8 @@ def decode(steps: DecoderSteps, latent: np.ndarray, full_depth: int = 2,
     features = steps.start(latent)
     for d in range(full_depth, steps.depth + 1):
         lv = levels[d]
-        features, logits, planes = steps.predict(d, features, lv.neighbors)
+        skip = () if guide is None else (guide.features[d], guide.rows(d, lv.key))
+        features, logits, planes = steps.predict(d, features, lv.neighbors, *skip)
         if empty_bias.get(d):
             logits = np.array(logits, dtype=np.float32)
             logits[:, EMPTY] += empty_bias[d]

@@ -28,7 +28,6 @@ from .data.partial import partial_from_scan
 from .data.shapes import stable_hash
 from .evaluate import MISSING_GAP_VOXELS, decoded_points
 from .files import json_text, write_atomic
-from .nn.tensors import OctreeTensors
 from .octree import scan_frame, scan_octree, validate
 from .octree.batch import merge_octrees
 from .octree.metrics import chamfer_distance, mean_squared_distance, missing_part
@@ -116,8 +115,8 @@ def degrade(runs: list[str], data: str, limit_per_category: int | None = None, r
             for run, m in zip(runs, models):
                 tree = scan_octree(cloud, m.config.depth, adaptive=m.model.arch.octree == "adaptive")
                 with torch.no_grad():
-                    latent = m.model.encoder(OctreeTensors.from_octree(merge_octrees([tree])))
-                out, _ = decoded_points(m.model, latent, None, resolution, 0)[0]
+                    latent, guide = m.model.encode_octree(merge_octrees([tree]))
+                out, _ = decoded_points(m.model, latent, None, resolution, 0, guide=guide)[0]
                 out = truth.to_cube(frame.to_world(out)) if len(out) else out
                 rows[s.name][run].append({**base, **(
                     {"chamfer_x1e3": chamfer_distance(truth_pts, out) * 1e3, "missing_x1e3": _missing_x1e3(missing, out)}

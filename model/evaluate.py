@@ -40,9 +40,10 @@ from scipy.spatial import cKDTree
 
 from .align import icp
 from .checkpoint import load_model
-from .decode import decode, empty_bias_of
+from .decode import Guide, decode, empty_bias_of
 from .files import json_text, write_atomic
 from .networks import AtlasNetDecoder, OctreeDecoder, PointSetDecoder, TorchSteps
+from .networks.decoder import teacher_skips
 from .nn.tensors import OctreeTensors
 from .octree import LEAF, Octree
 from .octree.metrics import chamfer_distance, mean_squared_distance, missing_part, sample_patches
@@ -53,7 +54,7 @@ from .surface import DEFAULT_SURFACE, SURFACES, surface_mesh
 from .train.config import TrainConfig
 from .train.images import image_batch, photo_batch
 from .train.completion import truth_view
-from .train.tasks import TASKS
+from .train.tasks import TASKS, encode_with_guide
 from .cli import command_parser
 
 
@@ -73,8 +74,8 @@ class Oracle:
     def start(self, latent):
         return self.steps.start(latent)
 
-    def predict(self, depth: int, x, neighbors: np.ndarray):
-        x, logits, plane = self.steps.predict(depth, x, neighbors)
+    def predict(self, depth: int, x, neighbors: np.ndarray, *skip):
+        x, logits, plane = self.steps.predict(depth, x, neighbors, *skip)
         label = torch.from_numpy(self.truth.levels[depth].label)
         status = self.steps.decoder.status_targets(depth, label).numpy()
         if self.planes and plane is not None:
@@ -85,11 +86,14 @@ class Oracle:
         return self.steps.expand(depth, x, split)
 
 
-def status_confusion(model, latent: torch.Tensor, tensors: OctreeTensors) -> dict[int, np.ndarray]:
-    """Per depth, the confusion matrix (truth x predicted status) of teacher-forced predictions."""
+def status_confusion(model, latent: torch.Tensor, octree: Octree, guide: Guide | None = None
+                     ) -> dict[int, np.ndarray]:
+    """Per depth, the confusion matrix (truth x predicted status) of predictions teacher-forced
+    over ``octree`` (a guided decoder with its input's ``guide``)."""
     dec = model.decoder
+    tensors = OctreeTensors.from_octree(octree)
     with torch.no_grad():
-        outputs = dec(latent, tensors)
+        outputs = dec(latent, tensors, teacher_skips(guide, octree))
     out = {}
     for (logits, _), d in zip(outputs, range(dec.full_depth, dec.depth + 1)):
         k = dec.classes(d)
@@ -105,11 +109,12 @@ ATLAS_GRID = 20
 
 def decoded_points(model, latent: torch.Tensor, octree_batch: Octree | None, resolution: int, seed: int,
                    oracle: str = "none", steps=None, scans: list[Octree] | None = None,
-                   empty_bias: dict[int, float] | None = None) -> list[tuple[np.ndarray, Octree | None]]:
+                   empty_bias: dict[int, float] | None = None, guide: Guide | None = None
+                   ) -> list[tuple[np.ndarray, Octree | None]]:
     """Per shape of the batch: decoded points in cube coordinates, and the decoded octree (or None).
     ``steps``: the decoder steps to grow octrees with (default: the torch decoder's).  ``scans``:
     each shape's input scan octree, kept where it saw the shape (:func:`keep_scan`); ``empty_bias``
-    as :func:`model.decode.decode`'s."""
+    and ``guide`` (a guided decoder's input) as :func:`model.decode.decode`'s."""
     dec = model.decoder
     if isinstance(dec, (PointSetDecoder, AtlasNetDecoder)):
         with torch.no_grad():
@@ -119,7 +124,7 @@ def decoded_points(model, latent: torch.Tensor, octree_batch: Octree | None, res
     out = []
     if oracle != "none":
         steps = Oracle(steps, octree_batch, planes=oracle == "all")
-    for b, tree in enumerate(split_octree(decode(steps, latent.numpy(), empty_bias=empty_bias), neighbors=False)):
+    for b, tree in enumerate(split_octree(decode(steps, latent.numpy(), empty_bias=empty_bias, guide=guide), neighbors=False)):
         if scans is not None:
             tree = keep_scan(tree, scans[b])
         if dec.has_plane(tree.depth):
@@ -261,6 +266,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         idx = np.arange(s, min(len(records), s + batch_size))
         octree, _ = records.batch(idx)
         framing = [{}] * len(idx)
+        guide = None
         if photos:
             images, framing = photo_batch([records.samples[i] for i in idx], task.spec(cfg), segment,
                                           remove_background, mask_spec)
@@ -269,19 +275,20 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
                           else model.encoder(torch.from_numpy(images)))
         elif runtime is None:
             with torch.no_grad():
-                latent = task.encode(model, cfg, records, idx)
+                latent, guide = encode_with_guide(model, cfg, records, idx)
         elif cfg.task == "image":
             latent = torch.from_numpy(runtime.encode_image(
                 image_batch([records.samples[i] for i in idx], task.spec(cfg), None)))
         else:
-            latent = torch.from_numpy(runtime.encode_octree(records.pairs(idx)[0] if completion else octree))
+            latent, guide = runtime.encode_scan(records.pairs(idx)[0] if completion else octree)
+            latent = torch.from_numpy(latent)
         if octree_decoder:
-            for d, m in status_confusion(model, latent, OctreeTensors.from_octree(octree)).items():
+            for d, m in status_confusion(model, latent, octree, guide).items():
                 confusion[d] = confusion.get(d, 0) + m
         scans = [records.scan(i) for i in idx] if keep_scan else None
         for i, frame, (pts, tree) in zip(idx, framing, decoded_points(model, latent, octree, resolution, seed,
                                                                       oracle, runtime and runtime.steps(), scans,
-                                                                      fill_bias)):
+                                                                      fill_bias, guide)):
             sample = records.samples[i]
             pts = truth_view(sample, pts)
             row = {"category": sample.category, "shape_id": sample.shape_id,

@@ -1,11 +1,13 @@
 """Pictures of real outputs for docs/RESULTS.md, drawn with the project's own renderer.
 
     python -m model.figures --data DIR --runs NAME=RUN [NAME=RUN ...] --out PNG [--split test]
-                            [--shapes 6] [--categories car chair ...]
+                            [--shapes 6] [--categories car chair ...] [--keep-scan]
 
 One row per test shape: the input (the encoder's view for image models, the partial scan for
 completion models), the truth (its adaptive octree's patches; for completion in the scan's frame), each run's output (patch meshes; point sets as small splats; AtlasNet's
-patches as grid meshes), and the first run's patches coloured by octree depth.
+patches as grid meshes), and the first run's patches coloured by octree depth.  ``--keep-scan``
+draws completion outputs as the service sends them by default (:func:`model.octree.fuse.keep_scan`
+with each run's recorded empty bias).
 """
 
 from __future__ import annotations
@@ -21,11 +23,12 @@ from PIL import Image, ImageDraw
 
 from .data.render import render
 from .checkpoint import load_model
+from .decode import Guide, empty_bias_of
 from .evaluate import ATLAS_GRID, decoded_points
 from .networks import AtlasNetDecoder, OctreeDecoder
 from .octree.patches import DEPTH_COLORS, patches_to_mesh
 from .train.images import eval_view
-from .train.tasks import TASKS
+from .train.tasks import TASKS, encode_with_guide
 from .cli import command_parser
 
 TILE = 160
@@ -56,8 +59,10 @@ def depth_colors(mesh: trimesh.Trimesh) -> np.ndarray:
     return np.asarray(mesh.visual.face_colors)[:, :3] / 255.0
 
 
-def output_mesh(model, latent: torch.Tensor, resolution: int = 64) -> list[tuple[trimesh.Trimesh, trimesh.Trimesh | None]]:
-    """Per shape: the decoded surface as a mesh, and for octree decoders the depth-coloured patches."""
+def output_mesh(model, latent: torch.Tensor, resolution: int = 64, guide: Guide | None = None,
+                scans: list | None = None, empty_bias: dict[int, float] | None = None) -> list[tuple[trimesh.Trimesh, trimesh.Trimesh | None]]:
+    """Per shape: the decoded surface as a mesh, and for octree decoders the depth-coloured patches
+    (``guide``, ``scans`` and ``empty_bias`` as :func:`model.evaluate.decoded_points`')."""
     dec = model.decoder
     if isinstance(dec, AtlasNetDecoder):
         with torch.no_grad():
@@ -65,7 +70,8 @@ def output_mesh(model, latent: torch.Tensor, resolution: int = 64) -> list[tuple
         faces = dec.triangles(ATLAS_GRID).numpy()
         return [(trimesh.Trimesh(p, faces, process=False), None) for p in pts]
     out = []
-    for pts, tree in decoded_points(model, latent, None, resolution, 0):
+    for pts, tree in decoded_points(model, latent, None, resolution, 0, scans=scans, empty_bias=empty_bias,
+                                     guide=guide):
         if tree is not None and isinstance(dec, OctreeDecoder) and dec.has_plane(tree.depth):
             out.append((patches_to_mesh(tree, world=False), patches_to_mesh(tree, color_by_depth=True, world=False)))
         else:
@@ -74,9 +80,12 @@ def output_mesh(model, latent: torch.Tensor, resolution: int = 64) -> list[tuple
 
 
 def figure(data: str, runs: list[tuple[str, str]], split: str = "test", shapes: int = 6,
-           categories: list[str] | None = None) -> Image.Image:
+           categories: list[str] | None = None, keep_scan: bool = False) -> Image.Image:
     """The picture described in the module docstring."""
-    models = [(name, loaded.model, loaded.config) for name, loaded in ((n, load_model(p)) for n, p in runs)]
+    loaded = [(n, load_model(p)) for n, p in runs]
+    models = [(name, run.model, run.config) for name, run in loaded]
+    if keep_scan and any(cfg.task != "completion" for _, _, cfg in models):
+        raise ValueError("--keep-scan draws completion models")
     first_cfg = dataclasses.replace(models[0][2], data=data)     # the dataset asked for, not the run's
     if len({cfg.task for _, _, cfg in models}) > 1:
         raise ValueError("--runs must all be of one task (all image models, all autoencoders or all completion models)")
@@ -97,11 +106,12 @@ def figure(data: str, runs: list[tuple[str, str]], split: str = "test", shapes: 
         draw.text((c * TILE + 4, 3), h, fill=(0, 0, 0))
     idx = np.array(chosen)
     columns = []
-    for name, model, cfg in models:
-        task = TASKS[cfg.task]
+    scans = [records.scan(i) for i in idx] if keep_scan else None
+    for (name, model, cfg), (_, run) in zip(models, loaded):
         with torch.no_grad():
-            latent = task.encode(model, cfg, records, idx)
-        columns.append(output_mesh(model, latent))
+            latent, guide = encode_with_guide(model, cfg, records, idx)
+        bias = empty_bias_of(run.meta.get("keep_scan")) if keep_scan else None
+        columns.append(output_mesh(model, latent, guide=guide, scans=scans, empty_bias=bias))
     for r, i in enumerate(chosen):
         s = records.samples[i]
         tiles = []
@@ -135,12 +145,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--split", default="test", choices=("train", "val", "test"), help="split to draw from (default test)")
     ap.add_argument("--shapes", type=int, default=6, help="rows: shapes of different categories (default 6)")
     ap.add_argument("--categories", nargs="+", default=None, help="draw shapes of these categories only")
+    ap.add_argument("--keep-scan", action="store_true",
+                    help="completion: draw the outputs the service sends by default (the scan kept where it "
+                         "has points, each run's recorded empty bias)")
     args = ap.parse_args(argv)
     try:
         runs = [tuple(r.split("=", 1)) for r in args.runs]
         if any(len(r) != 2 for r in runs):
             raise ValueError("--runs takes NAME=RUN_FOLDER items")
-        img = figure(args.data, runs, args.split, args.shapes, args.categories)
+        img = figure(args.data, runs, args.split, args.shapes, args.categories, args.keep_scan)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

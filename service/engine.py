@@ -102,17 +102,18 @@ class Engine:
         """One inference per model (first calls allocate and optimise); then the service is ready."""
         for served in self.models.values():
             rt, b = served.runtime, served.bundle
+            guide = None
             if b.task == "image-to-shape":
                 size = b.image_spec().size
                 latent = rt.encode_image(np.zeros((1, 3, size, size), np.float32))
             elif b.task in ("completion", "autoencoder", "classify"):
-                latent = rt.encode_octree(build_octree(_sphere(), b.octree.depth, adaptive=b.octree.adaptive))
+                latent, guide = rt.encode_scan(build_octree(_sphere(), b.octree.depth, adaptive=b.octree.adaptive))
                 if b.task == "classify":
                     rt.classify(latent)
                     continue
             else:
                 continue
-            octree = rt.decode(latent)
+            octree = rt.decode(latent, guide=guide)
             if any(octree.leaves_per_depth()):               # first exports import and compile lazily
                 for fmt in ("glb", "gltf", "ply", "obj"):
                     for surface in SURFACES:
@@ -175,7 +176,7 @@ class Engine:
             return self.frame_image(item).image
 
         def encode(inputs):
-            return served.runtime.encode_image(np.stack(inputs))
+            return served.runtime.encode_image(np.stack(inputs)), None
 
         def place(tree: Octree, _, __) -> Octree:
             tree.normalizations = [DECODED_NORMALIZATION]
@@ -198,7 +199,7 @@ class Engine:
                                    **({"threshold": o.threshold} if o.threshold else {}))
 
         def encode(trees):
-            return served.runtime.encode_octree(merge_octrees(trees))
+            return served.runtime.encode_scan(merge_octrees(trees))
 
         def place(tree: Octree, scan: Octree, item: Request) -> Octree:
             tree.normalizations = list(scan.normalizations)   # decoded in the scan's frame
@@ -210,7 +211,8 @@ class Engine:
         return self._batch(served, items, prepare, encode, place)
 
     def _batch(self, served: Served, items: list[Request], prepare, encode, place) -> list[MeshFile | APIError]:
-        """Prepare each item (its own errors kept for it), encode all, decode per depth (and
+        """Prepare each item (its own errors kept for it), encode all (``encode`` -> latent codes
+        and a guided decoder's :class:`~model.decode.Guide` or None), decode per depth (and
         keep_scan: its outputs decode with the bundle's keep_scan bias), and ``place(tree,
         prepared, item)`` each decoded tree in the item's frame before meshing."""
         out: list = [None] * len(items)
@@ -224,13 +226,14 @@ class Engine:
         if not ready:
             return out
         t = time.perf_counter()
-        latent = encode([x for _, x in ready])
+        latent, guide = encode([x for _, x in ready])        # guide: a guided decoder's input
         _share([items[i] for i, _ in ready], "encoder", time.perf_counter() - t)
         bias = served.bundle.keep_scan_bias        # the decode setting of outputs that keep the scan
         for depth, keep in sorted({(items[i].depth, items[i].keep_scan) for i, _ in ready}):
             group = [k for k, (i, _) in enumerate(ready) if (items[i].depth, items[i].keep_scan) == (depth, keep)]
             t = time.perf_counter()
-            decoded = split_octree(served.runtime.decode(latent[group], depth, bias if keep else None),
+            decoded = split_octree(served.runtime.decode(latent[group], depth, bias if keep else None,
+                                                         guide and guide.subset(np.array(group))),
                                    neighbors=False)
             _share([items[ready[k][0]] for k in group], "decoder", time.perf_counter() - t)
             for k, tree in zip(group, decoded):

@@ -14,7 +14,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from ..nn.ops import ConvBnRelu, DeconvBnRelu
+from ..nn.ops import ConvBnRelu, DeconvBnRelu, skip_gather
 from ..nn.tensors import OctreeTensors
 from ..octree import EMPTY, LEAF
 from .encoder import default_channels
@@ -53,17 +53,23 @@ class OctreeDecoder(nn.Module):
     'patch_star' (planes at every depth from ``adaptive_depth``).  ``hidden`` is the prediction
     module's width, ``loss`` the structure loss (:data:`STRUCTURE_LOSSES`) and ``blocks`` the
     convolutions per depth; the paper's setting is ``hidden=8, loss='ce', blocks=1``.
+
+    ``guided``: output-guided skip connections (Wang, Liu, Tong, CVPRW 2020): at every depth,
+    before its convolution, each octant the decoder grows gets the encoder's features of the
+    input's octant with the same key added (nothing where the input has none).  The decoder
+    then needs, per depth, the encoder's features and each octant's row in them
+    (:meth:`predict`'s ``skip`` and ``skip_index``; :func:`model.octree.keys.lookup`).
     """
 
     def __init__(self, depth: int, channels: dict[int, int] | None = None, latent: int = 128,
                  mode: str = "adaptive", full_depth: int = 2, adaptive_depth: int = 4,
-                 hidden: int = PAPER_HIDDEN, loss: str = "ce", blocks: int = 1):
+                 hidden: int = PAPER_HIDDEN, loss: str = "ce", blocks: int = 1, guided: bool = False):
         super().__init__()
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}")
         if loss not in STRUCTURE_LOSSES:
             raise ValueError(f"structure loss must be one of {STRUCTURE_LOSSES}, got {loss!r}")
-        self.depth, self.mode, self.loss_kind = depth, mode, loss
+        self.depth, self.mode, self.loss_kind, self.guided = depth, mode, loss, guided
         self.full_depth, self.adaptive_depth = full_depth, adaptive_depth
         self.channels = channels or default_channels(depth, full_depth=full_depth)
         ch = self.channels
@@ -91,8 +97,14 @@ class OctreeDecoder(nn.Module):
         """Features (B*64, C) of the full depth-2 octants, shape-major in key order."""
         return self.fc(latent).reshape(-1, self.channels[self.full_depth])
 
-    def predict(self, depth: int, x: torch.Tensor, neighbors: torch.Tensor
-                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    def predict(self, depth: int, x: torch.Tensor, neighbors: torch.Tensor, skip: torch.Tensor | None = None,
+                skip_index: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """One depth: (skip connection,) convolutions, status logits and planes.  ``skip`` (M, C)
+        and ``skip_index`` (N,): a guided decoder's input features and each octant's row in them."""
+        if self.guided:
+            if skip is None or skip_index is None:
+                raise ValueError("a guided decoder needs the encoder's features and their rows (skip, skip_index)")
+            x = x + skip_gather(skip, skip_index)
         x = self.conv[str(depth)](x, neighbors)
         if self.refine is not None:
             for block in self.refine[str(depth)]:
@@ -108,13 +120,16 @@ class OctreeDecoder(nn.Module):
     def expand(self, depth: int, x: torch.Tensor, split: torch.Tensor) -> torch.Tensor:
         return self.up[str(depth)](x, split)
 
-    def forward(self, latent: torch.Tensor, octree: OctreeTensors) -> list[tuple[torch.Tensor, torch.Tensor | None]]:
-        """Teacher forcing: run over the ground-truth octree; (logits, plane) per depth from 2."""
+    def forward(self, latent: torch.Tensor, octree: OctreeTensors,
+                skips: dict[int, tuple[torch.Tensor, torch.Tensor]] | None = None
+                ) -> list[tuple[torch.Tensor, torch.Tensor | None]]:
+        """Teacher forcing: run over the ground-truth octree; (logits, plane) per depth from 2.
+        ``skips`` (guided decoders): depth -> (the encoder's features, each octant's row in them)."""
         x = self.start(latent)
         outputs = []
         for d in range(self.full_depth, self.depth + 1):
             lv = octree.levels[d]
-            x, logits, plane = self.predict(d, x, lv.neighbors)
+            x, logits, plane = self.predict(d, x, lv.neighbors, *(skips or {}).get(d, (None, None)))
             outputs.append((logits, plane))
             if d < self.depth:
                 x = self.expand(d, x, lv.split)
@@ -150,6 +165,14 @@ class OctreeDecoder(nn.Module):
         return {"structure": structure, "patch": patch, "total": structure + patch}
 
 
+def teacher_skips(guide, octree) -> dict[int, tuple[torch.Tensor, torch.Tensor]] | None:
+    """A :class:`model.decode.Guide`'s skips (its features as tensors) for teacher forcing over
+    ``octree`` (None: no guide)."""
+    if guide is None:
+        return None
+    return {d: (torch.as_tensor(f), torch.from_numpy(rows)) for d, (f, rows) in guide.matched(octree).items()}
+
+
 class TorchSteps:
     """Adapts an :class:`OctreeDecoder` to :class:`model.decode.DecoderSteps` (NumPy in and out)."""
 
@@ -164,9 +187,11 @@ class TorchSteps:
         return self.decoder.start(torch.as_tensor(latent, dtype=torch.float32, device=self.device))
 
     @torch.no_grad()
-    def predict(self, depth: int, x: torch.Tensor, neighbors: np.ndarray):
+    def predict(self, depth: int, x: torch.Tensor, neighbors: np.ndarray, skip: torch.Tensor | None = None,
+                skip_index: np.ndarray | None = None):
         nb = torch.as_tensor(neighbors.astype(np.int64), device=self.device)
-        x, logits, plane = self.decoder.predict(depth, x, nb)
+        rows = None if skip_index is None else torch.as_tensor(skip_index.astype(np.int64), device=self.device)
+        x, logits, plane = self.decoder.predict(depth, x, nb, skip, rows)
         return x, logits.cpu().numpy(), None if plane is None else plane.cpu().numpy()
 
     @torch.no_grad()

@@ -48,12 +48,27 @@ class OctreeEncoder(nn.Module):
     def encode(self, signals: list, neighbors: list, splits: list) -> torch.Tensor:
         """The network on plain per-depth tables (lists indexed by depth; the graph export's entry):
         ``signals[d]`` (N_d, 4) planes, ``neighbors[d]`` (N_d, 27), ``splits[d]`` split indices."""
+        return self.encode_features(signals, neighbors, splits)[0]
+
+    def features(self, octree: OctreeTensors) -> tuple[torch.Tensor, dict[int, torch.Tensor]]:
+        """Latent codes and the features of every depth's octants (see :meth:`encode_features`)."""
+        lv = octree.levels
+        return self.encode_features([v.plane for v in lv], [v.neighbors for v in lv], [v.split for v in lv])
+
+    def encode_features(self, signals: list, neighbors: list, splits: list
+                        ) -> tuple[torch.Tensor, dict[int, torch.Tensor]]:
+        """:meth:`encode`, also returning the features (N_d, channels[d]) of the input's octants
+        at each depth d (full depth .. depth) as the depth's convolution reads them: what the
+        output-guided skip connections of a decoder add to the octants they share."""
         d = self.depth
         x = self.branch[str(d)](signals[d], neighbors[d])
+        per_depth = {}
         for d in range(self.depth, self.full_depth, -1):
+            per_depth[d] = x
             x = self.down[str(d)](x, neighbors[d])
             x = octree_max_pool(x, splits[d - 1], neighbors[d - 1].shape[0])
             if self.signal == "all":
                 x = torch.maximum(x, self.branch[str(d - 1)](signals[d - 1], neighbors[d - 1]))
+        per_depth[self.full_depth] = x
         # Depth 2 is full: 64 octants per shape, shape-major in key order.
-        return self.head(x.reshape(-1, 64 * x.shape[1]))
+        return self.head(x.reshape(-1, 64 * x.shape[1])), per_depth

@@ -171,6 +171,13 @@ def octree_upsample(x: torch.Tensor, split: torch.Tensor) -> torch.Tensor:
     return x.index_select(0, split.unsqueeze(1).expand(-1, CHILDREN).reshape(-1))
 
 
+def skip_gather(skip: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """Rows of another octree's features at these octants: (M, C) features of M octants and (N,)
+    rows into them (:func:`model.octree.keys.lookup`: M where the octant has no match) -> (N, C),
+    zeros for the unmatched.  Concat + Gather in ONNX."""
+    return torch.cat([skip, skip.new_zeros(1, skip.shape[1])]).index_select(0, index)
+
+
 def _uniform_(tensor: torch.Tensor, fan_in: int) -> None:
     """U(-1/sqrt(fan_in), 1/sqrt(fan_in)): what nn.Conv3d's kaiming_uniform_(a=sqrt(5)) gives."""
     bound = 1.0 / math.sqrt(fan_in) if fan_in > 0 else 0.0

@@ -76,3 +76,20 @@ def child_keys(keys: np.ndarray) -> np.ndarray:
     batch = keys & ~_MORTON_MASK
     inner = (keys & _MORTON_MASK) << np.uint64(3)
     return ((batch | inner)[:, None] | np.arange(8, dtype=np.uint64)[None]).ravel()
+
+
+def lookup(table: np.ndarray, query: np.ndarray) -> np.ndarray:
+    """Row of each ``query`` key in the ascending ``table`` of keys (int64), ``len(table)`` where a
+    key is absent (the row a padded table keeps for "not found").  Both may hold batch bits."""
+    table = np.asarray(table, dtype=np.uint64)
+    query = np.asarray(query, dtype=np.uint64)
+    at = np.searchsorted(table, query).astype(np.int64)
+    found = at < len(table)
+    found[found] = table[at[found]] == query[found]
+    return np.where(found, at, len(table))
+
+
+def with_batch(keys: np.ndarray, batch: np.ndarray | int) -> np.ndarray:
+    """``keys`` with their batch bits replaced by ``batch``."""
+    keys = np.asarray(keys, dtype=np.uint64)
+    return (keys & _MORTON_MASK) | (np.asarray(batch, dtype=np.uint64) << np.uint64(BATCH_SHIFT))

@@ -115,6 +115,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     c.add_argument("--arch", choices=COMPLETION_ARCHS, default="aocnn",
                    help="aocnn (default): Adaptive O-CNN; ocnn-patch (the paper's baseline), ocnn-patch-star, "
                         "ocnn-binary: O-CNN on full octrees")
+    c.add_argument("--skips", action="store_true",
+                   help="output-guided skip connections: each decoded octant also reads the encoder's "
+                        "features of the scan's octant with the same key (Wang, Liu, Tong, CVPRW 2020)")
     k = sub.add_parser("classify", parents=[common], help="train shape classification (paper section 5.1)")
     k.add_argument("--arch", choices=sorted(CLASSIFIER_ARCHS), default="aocnn",
                    help="aocnn (default): Adaptive O-CNN on the adaptive octree; ocnn: O-CNN on the full octree")

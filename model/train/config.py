@@ -58,6 +58,7 @@ class TrainConfig:
     device: str = "cpu"                        # where the network trains (cpu, cuda, cuda:N)
     amp: bool = False                          # bfloat16 autocast of the forward pass
     up: str = "y"                              # classify: the up axis of the dataset's shapes
+    skips: bool = False                        # completion: output-guided skip connections
 
     def image_spec(self) -> ImageSpec:
         """The preprocessing of an image task's encoder (its input side and framing)."""

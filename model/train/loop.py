@@ -28,8 +28,10 @@ def build_model(cfg: TrainConfig) -> torch.nn.Module:
 
 
 def to_device(inputs: tuple, device: torch.device) -> tuple:
-    """A batch's model arguments on ``device`` (tensors and :class:`OctreeTensors`; None stays)."""
-    return tuple(None if x is None else x.to(device) for x in inputs)
+    """A batch's model arguments on ``device`` (tensors, :class:`OctreeTensors` and dicts of
+    tensors; None stays)."""
+    return tuple(None if x is None else {k: v.to(device) for k, v in x.items()} if isinstance(x, dict)
+                 else x.to(device) for x in inputs)
 
 
 _LOADER: Trainer | None = None

@@ -16,6 +16,7 @@ import torch
 from torch import nn
 
 from ..networks import ARCHS, IMAGE_DECODERS, IMAGE_ENCODERS, Autoencoder, ImageToShape
+from ..decode import Guide, matched_rows
 from ..networks.decoder import STRUCTURE_LOSSES
 from ..nn.tensors import OctreeTensors
 from ..preprocess import ImageSpec, MaskSpec, prepare_image
@@ -72,7 +73,7 @@ class AutoencoderTask(OctreeInputTask):
     def build_model(self, cfg):
         return Autoencoder(cfg.arch, cfg.depth, latent=cfg.latent, base_channels=cfg.channels,
                            hidden=cfg.pred_hidden, structure_loss=cfg.structure_loss,
-                           decoder_blocks=cfg.decoder_blocks)
+                           decoder_blocks=cfg.decoder_blocks, guided=cfg.skips)
 
     def inputs(self, cfg, dataset, indices, rng):
         octree, points = dataset.batch(indices)
@@ -202,7 +203,8 @@ class CompletionTask(AutoencoderTask):
 
     def inputs(self, cfg, dataset, indices, rng):
         source, target = dataset.pairs(indices, rng)
-        return OctreeTensors.from_octree(source), None, OctreeTensors.from_octree(target)
+        rows = {d: torch.from_numpy(r) for d, r in matched_rows(source, target).items()} if cfg.skips else None
+        return OctreeTensors.from_octree(source), None, OctreeTensors.from_octree(target), rows
 
 
 class ClassifyTask(OctreeInputTask):
@@ -296,6 +298,14 @@ FOREGROUND_WIDTH = 8
 
 TASKS: dict[str, Task] = {"autoencoder": AutoencoderTask(), "image": ImageTask(), "completion": CompletionTask(),
                           "classify": ClassifyTask(), "foreground": ForegroundTask()}
+
+
+def encode_with_guide(model: nn.Module, cfg: TrainConfig, dataset, indices) -> tuple[torch.Tensor, Guide | None]:
+    """Latent codes of shapes ``indices`` (:meth:`Task.encode`) and, for a guided completion
+    model, the :class:`~model.decode.Guide` of their scans (evaluation views) to decode with."""
+    if not cfg.skips:
+        return TASKS[cfg.task].encode(model, cfg, dataset, indices), None
+    return model.encode_octree(dataset.pairs(indices)[0])
 
 
 def check_config(cfg: TrainConfig) -> None:

@@ -11,6 +11,7 @@ import pytest
 import torch
 import trimesh
 
+from export.exporter import probe_octrees
 from model.data.shapes import generate
 from model.decode import decode
 from model.networks import TorchSteps
@@ -30,6 +31,8 @@ CONFIGS = {
     "image-resnet18": dict(task="image", arch="aocnn", depth=DEPTH, encoder="resnet18", encoder_width=8,
                            image_size=64, pred_hidden=16),
     "completion-aocnn": dict(task="completion", arch="aocnn", depth=DEPTH, structure_loss="balanced", pred_hidden=16),
+    "completion-guided": dict(task="completion", arch="aocnn", depth=DEPTH, structure_loss="balanced", pred_hidden=16,
+                              skips=True),
     "classify-aocnn": dict(task="classify", arch="aocnn", depth=DEPTH, categories=["chair", "airplane", "car"]),
 }
 
@@ -50,7 +53,12 @@ def make_model(name: str) -> tuple[torch.nn.Module, TrainConfig]:
                 m.bias.copy_(0.2 * torch.rand(n, generator=g) - 0.1)
     model.eval()
     if hasattr(model, "decoder"):
-        decode(_BiasToMixedTree(model.decoder), np.random.default_rng(0).uniform(-0.2, 0.2, (2, cfg.latent)))
+        latent, guide = np.random.default_rng(0).uniform(-0.2, 0.2, (2, cfg.latent)), None
+        if cfg.skips:                  # a guided decoder reads real input octrees
+            with torch.no_grad():
+                latent, guide = model.encode_octree(probe_octrees(cfg.depth, batch=2))
+            latent = latent.numpy()
+        decode(_BiasToMixedTree(model.decoder), latent, guide=guide)
     return model, cfg
 
 
@@ -59,14 +67,14 @@ class _BiasToMixedTree(TorchSteps):
     and the rest split between split and leaf: a random decoder otherwise empties everything."""
 
     @torch.no_grad()
-    def predict(self, depth, x, neighbors):
-        logits = super().predict(depth, x, neighbors)[1]
+    def predict(self, depth, x, neighbors, *skip):
+        logits = super().predict(depth, x, neighbors, *skip)[1]
         bias = self.decoder.pred[str(depth)][-1].bias
         if logits.shape[1] == 3:
             bias[1] -= float(np.median(logits[:, 1] - logits[:, 2]))
-            logits = super().predict(depth, x, neighbors)[1]
+            logits = super().predict(depth, x, neighbors, *skip)[1]
         bias[0] += float(np.quantile(logits[:, 1:].max(1) - logits[:, 0], 0.4))
-        return super().predict(depth, x, neighbors)
+        return super().predict(depth, x, neighbors, *skip)
 
 
 def save_checkpoint(model: torch.nn.Module, cfg: TrainConfig, folder) -> None:

@@ -40,7 +40,10 @@ def test_a_bundle_with_one_flipped_byte_is_refused_naming_the_file(bundle_copy):
 
 
 @pytest.mark.parametrize("case, edit, message", [
-    ("newer format", lambda m: m.update(format=2), r"format 2 is newer than this software reads \(1\)"),
+    ("newer format", lambda m: m.update(format=3), r"format 3 is newer than this software reads \(2\)"),
+    ("guided without skip outputs", lambda m: m["octree"].update(guided=True),
+     r"guided bundle's octree_encoder must output skip_2\.\.skip_5"),
+    ("guided not a boolean", lambda m: m["octree"].update(guided="yes"), r"guided must be true or false"),
     ("graph left out", lambda m: m["graphs"].pop("decoder_expand_3"), r"needs the graphs decoder_expand_3"),
     ("unknown task", lambda m: m.update(task="segmentation"), r"unknown task 'segmentation'"),
     ("path outside", lambda m: m["graphs"]["decoder_start"].update(file="../x.onnx"), r"plain \.onnx file name"),
@@ -56,6 +59,14 @@ def test_an_inconsistent_manifest_is_refused_saying_what_is_wrong(bundle_copy, c
     _edit_manifest(bundle_copy, edit)
     with pytest.raises(BundleError, match=message):
         load_bundle(bundle_copy)
+
+
+def test_a_guided_bundle_whose_decoder_does_not_read_the_skips_is_refused(exported, tmp_path):
+    shutil.copytree(exported("completion-guided")[2], tmp_path / "guided")
+    assert load_bundle(tmp_path / "guided").octree.guided
+    _edit_manifest(tmp_path / "guided", lambda m: m["graphs"]["decoder_predict_4"]["inputs"].pop("skip_index"))
+    with pytest.raises(BundleError, match="decoder_predict_4 must read skip and skip_index"):
+        load_bundle(tmp_path / "guided")
 
 
 def test_missing_files_and_non_bundles_are_refused(bundle_copy, tmp_path):

@@ -208,3 +208,53 @@ def test_a_coarser_level_of_detail_stops_at_the_requested_depth(exported, clouds
     assert coarse.depth == 4 and len(coarse.levels) == 5 and sum(coarse.leaves_per_depth()) > 0
     with pytest.raises(ValueError, match="depth must be in 2..5"):
         runtime.decode(latent, depth=6)
+
+
+def test_guided_graphs_pass_the_encoder_features_and_match_torch(exported, clouds):
+    """Output-guided skip connections in the graphs: the encoder outputs every depth's features,
+    each predict step adds the input's features at the octants it shares (by key), and decoding
+    through onnxruntime grows the octree torch grows."""
+    model, cfg, folder = exported("completion-guided")
+    bundle = load_bundle(folder)
+    assert bundle.octree.guided and bundle.format == 2
+    runtime = Runtime(bundle, threads=1)
+    truth = _truth(model, cfg, clouds, start=2)
+    latent_o, guide_o = runtime.encode_scan(truth)
+    with torch.no_grad():
+        latent_t, guide_t = model.encode_octree(truth)
+    assert np.abs(latent_o - latent_t.numpy()).max() <= TOL
+    assert sorted(guide_o.features) == list(range(2, cfg.depth + 1))
+    for d, f in guide_o.features.items():
+        assert f.shape == (len(truth.levels[d]), model.encoder.channels[d])
+        assert np.abs(f - guide_t.features[d].numpy()).max() <= TOL
+        assert np.array_equal(guide_o.keys[d], truth.levels[d].key)
+
+    # teacher forcing along the input's own octree: every octant is found in the guide
+    dec, steps = model.decoder, runtime.steps()
+    x = steps.start(latent_o)
+    for d in range(dec.full_depth, dec.depth + 1):
+        rows = guide_o.rows(d, truth.levels[d].key)
+        assert np.array_equal(rows, np.arange(len(truth.levels[d])))
+        nb = truth.levels[d].neighbors
+        y_o, logits_o, _ = steps.predict(d, x, nb, guide_o.features[d], rows)
+        with torch.no_grad():
+            y_t, logits_t, _ = dec.predict(d, torch.from_numpy(x), torch.from_numpy(nb.astype(np.int64)),
+                                           guide_t.features[d], torch.from_numpy(rows))
+            y_plain = dec.conv[str(d)](torch.from_numpy(x), torch.from_numpy(nb.astype(np.int64)))
+        assert np.abs(y_o - y_t.numpy()).max() <= TOL and np.abs(logits_o - logits_t.numpy()).max() <= TOL
+        assert float((y_t - y_plain).abs().max()) > 1e-3     # the skip features change the features
+        if d < dec.depth:
+            x = steps.expand(d, y_o, truth.levels[d].split_nodes())
+
+    a = runtime.decode(latent_o, guide=guide_o)
+    b = decode(TorchSteps(dec), latent_t.numpy(), dec.full_depth, dec.adaptive_depth, guide=guide_t)
+    leaves_a, leaves_b = _leaves(a), _leaves(b)
+    assert len(leaves_b) > 100 and len(set(leaves_a) ^ set(leaves_b)) <= 0.005 * len(leaves_b)
+    with pytest.raises(ValueError, match="guide"):
+        runtime.decode(latent_o)
+    # the guide of the second and third shapes decodes them as in the batch
+    sub = runtime.decode(latent_o[1:], guide=guide_o.subset(np.array([1, 2])))
+    whole = split_octree(a, neighbors=False)
+    for tree, ref in zip(split_octree(sub, neighbors=False), whole[1:]):
+        assert [len(lv) for lv in tree.levels] == [len(lv) for lv in ref.levels]
+        assert all(np.array_equal(x.label, y.label) for x, y in zip(tree.levels, ref.levels))

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from model.decode import decode, full_levels
+from model.decode import Guide, decode, full_levels
 from model.octree import EMPTY, build_octree
-from model.octree.batch import merge_octrees
-from model.octree.keys import child_keys
+from model.octree.batch import merge_octrees, split_octree
+from model.octree.keys import batch_of, child_keys, with_batch
 
 from ..octree.conftest import sphere_points
 from ..octree.test_tables import neighbors_by_key_search
@@ -116,3 +116,41 @@ def test_an_empty_bias_prunes_only_the_depths_it_is_given():
     assert len(pruned.levels[6]) == 0
     half = decode(OracleSteps(truth), np.zeros((1, 8)), empty_bias={5: 0.5})     # below the margin: no change
     assert all(np.array_equal(a.label, b.label) for a, b in zip(base.levels, half.levels))
+
+
+class GuidedOracleSteps(OracleSteps):
+    """:class:`OracleSteps` that checks the rows the loop hands a guided decoder: the guide's
+    'features' are its keys, so a found row must hold the grown octant's own position (the batch
+    bits may differ: a subset renumbers the shapes, its features keep theirs)."""
+
+    def __init__(self, truth):
+        super().__init__(truth)
+        self.found = {}
+
+    def predict(self, depth, keys, neighbors, skip=None, skip_index=None):
+        found = skip_index < len(skip)
+        assert np.array_equal(with_batch(skip[skip_index[found]], 0), with_batch(keys[found], 0))
+        self.found[depth] = int(found.sum())
+        return super().predict(depth, keys, neighbors)
+
+
+def test_a_guide_gives_each_grown_octant_its_input_octant_by_key_per_shape():
+    pts, nrm = sphere_points(20_000)
+    half = pts[:, 0] > 0.1                             # the scan saw one side of the sphere
+    truth = merge_octrees([build_octree((pts, nrm), 6), build_octree((pts[::-1], nrm[::-1]), 6)])
+    scan = merge_octrees([build_octree((pts[half], nrm[half]), 6, normalization=truth.normalizations[0]),
+                          build_octree((pts, nrm), 6)])
+    guide = Guide.of(scan, {d: scan.levels[d].key for d in range(2, 7)})
+    steps = GuidedOracleSteps(truth)
+    grown = decode(steps, np.zeros((2, 8)), guide=guide)
+    assert [len(lv) for lv in grown.levels] == [len(lv) for lv in truth.levels]
+    assert steps.found[2] == 128 and steps.found[6] == int(np.isin(scan.levels[6].key, truth.levels[6].key).sum())
+    assert 0 < steps.found[6] < len(truth.levels[6])          # the half scan misses part of the first shape
+
+    # the second shape alone, renumbered to position 0, finds what it found in the batch
+    second = guide.subset(np.array([1]))
+    only = GuidedOracleSteps(split_octree(truth, neighbors=True)[1])
+    decode(only, np.zeros((1, 8)), guide=second)
+    in_batch = np.isin(scan.levels[6].key[batch_of(scan.levels[6].key) == 1], truth.levels[6].key).sum()
+    assert only.found[6] == in_batch > 0
+    assert np.all(batch_of(second.keys[6]) == 0) and len(second.features[6]) == len(second.keys[6])

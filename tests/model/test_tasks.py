@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
 from model.data.dataset import load_record
 from model.octree import build_octree, scan_frame, scan_octree, validate
@@ -209,3 +210,62 @@ def test_degradation_table_pairs_settings_and_reads_fewer_views_as_worse_input(s
     assert empty["too_few_points"] == 2 and empty["chamfer_x1e3_category_mean"] is None
     missing = {k: v["rows"]["input"]["missing_x1e3_category_mean"] for k, v in res["settings"].items()}
     assert missing["1 view"] > missing[SETTINGS[0].name] > (2 / 32) ** 2 * 1e3     # at least the gap, squared
+
+
+def test_guided_completion_reads_the_scans_features_trains_resumes_and_exports(scan_data, tmp_path):
+    """Output-guided skip connections: the decoder's octants that the scan also has get the
+    encoder's features; training resumes identically; calibration, evaluation and export follow."""
+    from export.bundle import load_bundle
+    from export.exporter import export
+    from model.calibrate import main as calibrate_main
+    from model.decode import matched_rows
+    from model.evaluate import main as evaluate_main
+    from model.nn.tensors import OctreeTensors
+
+    straight, summary = trains_and_resumes_identically(scan_data, tmp_path, task="completion",
+                                                       structure_loss="balanced", skips=True)
+    assert np.isfinite(summary["train"]["total"]) and straight.model.guided
+    source, target = straight.train_set.pairs(np.arange(3))
+    rows = matched_rows(source, target)
+    for d, r in rows.items():             # a row points at the scan's octant with the same key, or past the end
+        found = r < len(source.levels[d])
+        assert np.array_equal(source.levels[d].key[r[found]], target.levels[d].key[found])
+        assert not np.isin(target.levels[d].key[~found], source.levels[d].key).any()
+    assert rows[2].tolist() == list(range(3 * 64))              # the full depth: every octant shared
+    assert 0 < np.mean(rows[5] < len(source.levels[5])) < 1     # the finest: the scan saw part of the shape
+    model = straight.model.eval()
+    with pytest.raises(ValueError, match="rows"):
+        model(OctreeTensors.from_octree(source), None, OctreeTensors.from_octree(target))
+    # the skip connections carry the scan: other scans' features give other predictions
+    with torch.no_grad():
+        latent, features = model.encoder.features(OctreeTensors.from_octree(source))
+        t = OctreeTensors.from_octree(target)
+        own = model.decoder(latent, t, {d: (features[d], torch.from_numpy(r)) for d, r in rows.items()})
+        none = model.decoder(latent, t, {d: (features[d], torch.full_like(torch.from_numpy(r), len(features[d])))
+                                         for d, r in rows.items()})
+    assert all(float((a[0] - b[0]).abs().max()) > 1e-4 for a, b in zip(own, none))
+
+    assert calibrate_main([str(tmp_path / "a"), "--data", str(scan_data), "--split", "train",
+                           "--out", str(tmp_path / "cal")]) == 0
+    out = tmp_path / "guided.json"
+    assert evaluate_main([str(tmp_path / "cal"), "--data", str(scan_data), "--split", "train", "--limit", "4",
+                          "--resolution", "32", "--keep-scan", "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["shapes"] == 4 and all(r["chamfer_x1e3"] is not None for r in res["per_shape"])
+    # the picture of what the service sends: scan, truth, the fused output, its depth colours
+    from model.figures import TILE, figure
+    fused = figure(str(scan_data), [("guided", str(tmp_path / "cal"))], split="train", shapes=2, keep_scan=True)
+    alone = figure(str(scan_data), [("guided", str(tmp_path / "cal"))], split="train", shapes=2)
+    assert fused.size == alone.size == (4 * TILE, 18 + 2 * TILE)
+    column = (2 * TILE, 18, 3 * TILE, 18 + 2 * TILE)         # the output
+    assert np.abs(np.asarray(fused.crop(column), float) - np.asarray(alone.crop(column), float)).mean() > 1
+    meta = export(tmp_path / "cal", tmp_path / "bundle")
+    assert meta["format"] == 2 and meta["octree"]["guided"] is True
+    assert meta["export"]["self_check"]["label_agreement"] >= 0.999
+    assert load_bundle(tmp_path / "bundle").octree.guided
+    # served through onnxruntime (encoder features, key lookup, skip inputs): torch's figures
+    for name, extra in (("torch", []), ("served", ["--bundle", str(tmp_path / "bundle")])):
+        assert evaluate_main([str(tmp_path / "cal"), "--data", str(scan_data), "--split", "train", "--limit", "4",
+                              "--resolution", "32", "--out", str(tmp_path / f"{name}.json"), *extra]) == 0
+    a, b = (json.loads((tmp_path / f"{n}.json").read_text())["per_shape"] for n in ("torch", "served"))
+    assert [r["chamfer_x1e3"] for r in b] == pytest.approx([r["chamfer_x1e3"] for r in a], rel=0.02)

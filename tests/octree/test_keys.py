@@ -41,3 +41,19 @@ def test_child_keys_keep_the_batch_bits():
     assert np.array_equal(keys.batch_of(ck), np.repeat([0, 5], 8))
     assert np.array_equal(keys.parent_keys(ck), np.repeat(k, 8))
     assert np.array_equal(keys.decode(ck[8:])[0], keys.decode(ck[:8])[0])
+
+
+def test_lookup_finds_equal_keys_per_shape_and_points_past_the_end_otherwise():
+    table = np.sort(keys.encode(np.array([[0, 0, 0], [1, 2, 3], [4, 4, 4], [1, 2, 3]]), np.array([0, 0, 0, 2])))
+    query = keys.encode(np.array([[1, 2, 3], [1, 2, 3], [1, 2, 3], [7, 7, 7], [4, 4, 4]]), np.array([2, 0, 1, 0, 0]))
+    rows = keys.lookup(table, query)
+    assert rows.dtype == np.int64 and rows.tolist() == [3, 1, 4, 4, 2]     # shape 1 has no (1, 2, 3)
+    assert keys.lookup(table[:0], query).tolist() == [0] * 5
+    assert keys.lookup(table, query[:0]).shape == (0,)
+
+
+def test_with_batch_replaces_only_the_batch_bits():
+    k = keys.encode(np.array([[5, 6, 7], [1, 1, 1]]), np.array([3, 9]))
+    moved = keys.with_batch(k, np.array([0, 1]))
+    xyz, batch = keys.decode(moved)
+    assert xyz.tolist() == [[5, 6, 7], [1, 1, 1]] and batch.tolist() == [0, 1]

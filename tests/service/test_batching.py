@@ -71,3 +71,48 @@ def test_concurrent_requests_get_the_same_meshes_batched_or_not(models_dir, wind
     batches = float(text.split("aocnn_batch_size_count ")[1].split()[0])
     assert float(text.split("aocnn_batch_size_sum ")[1].split()[0]) == 5
     assert batches == 5 if window == 0 else batches < 5     # one batch per request, or shared batches
+
+
+def test_a_guided_completion_answers_each_scan_with_its_own_features_batched_or_not(models_dir, exported, clouds,
+                                                                                  tmp_path):
+    """A guided completion bundle (output-guided skip connections) batches scans: the decode of
+    each group (keep_scan true / false) reads only its own shapes' encoder features, so batched
+    answers equal single ones and torch's decode with the same scan."""
+    import shutil
+
+    import numpy as np
+    import torch
+
+    from model.decode import decode
+    from model.networks import TorchSteps
+    from model.octree import scan_octree, validate
+    from model.octree.batch import split_octree
+
+    from .test_api import _npy, partial_cloud
+
+    model, cfg, bundle = exported("completion-guided")
+    root = tmp_path / "models"
+    shutil.copytree(models_dir, root)
+    shutil.rmtree(root / "completion")
+    shutil.copytree(bundle, root / "completion")
+    base = partial_cloud(clouds)[::4]
+    scans = [base, base[base[:, 1] < np.quantile(base[:, 1], 0.8)], base[::2] * 1.5 + 0.3]
+    queries = ["keep_scan=false", "keep_scan=true", "keep_scan=false"]
+    tree = scan_octree(validate(scans[0], None), cfg.depth)
+    with torch.no_grad():
+        latent, guide = model.encode_octree(tree)
+    own = split_octree(decode(TorchSteps(model.decoder), latent.numpy(), guide=guide), neighbors=False)[0]
+    with make_client(root) as single:
+        want = [single.post(f"/v1/complete?format=ply&{q}", files={"points": ("s.npy", _npy(s))})
+                for s, q in zip(scans, queries)]
+    assert want[0].headers["x-octree-leaves"] == ",".join(f"{d}:{n}" for d, n in enumerate(own.leaves_per_depth()) if n)
+    with make_client(root, batch_window_ms=300, max_batch=4) as c:
+        with ThreadPoolExecutor(3) as pool:
+            got = list(pool.map(lambda a: c.post(f"/v1/complete?format=ply&{a[1]}",
+                                                 files={"points": ("s.npy", _npy(a[0]))}), zip(scans, queries)))
+        text = c.get("/metrics").text
+    assert float(text.split("aocnn_batch_size_count ")[1].split()[0]) < 3      # shared batches
+    for g, w in zip(got, want):
+        assert g.status_code == 200 == w.status_code, g.text
+        assert g.headers["x-octree-leaves"] == w.headers["x-octree-leaves"]
+    assert len({w.headers["x-octree-leaves"] for w in want}) == 3
