@@ -55,7 +55,6 @@ def _completes_a_scan_with_holes(loaded, meta):
     from model.data import generate, partial_from_scan, scan_detailed
     from model.decode import decode
     from model.networks import TorchSteps
-    from model.nn.tensors import OctreeTensors
     from model.octree import scan_frame, scan_octree, validate
     from model.octree.batch import split_octree
     from model.octree.metrics import missing_distance, sample_patches
@@ -65,8 +64,8 @@ def _completes_a_scan_with_holes(loaded, meta):
     move = lambda p: p * 3.0 + [10.0, -4.0, 2.0]              # noqa: E731  the user's units and position
     cloud = validate(move(pts), nrm)
     with torch.no_grad():
-        latent = loaded.model.encoder(OctreeTensors.from_octree(scan_octree(cloud, loaded.config.depth)))
-    tree = split_octree(decode(TorchSteps(loaded.model.decoder), latent.numpy()))[0]
+        latent, guide = loaded.model.encode_octree(scan_octree(cloud, loaded.config.depth))
+    tree = split_octree(decode(TorchSteps(loaded.model.decoder), latent.numpy(), guide=guide))[0]
     tree.normalizations = [scan_frame(cloud.points)]
     out = sample_patches(tree, resolution=128, seed=0)        # world coordinates
     truth, gap = move(full.points), 3.0 * 2 / 64              # two finest voxels
@@ -170,6 +169,7 @@ def test_shipped_bundle_is_the_checkpoint_s_export_and_matches_it(name):
     assert bundle.meta["evaluation"] == meta["evaluation"]
     model = load_model(CHECKPOINTS / name).model
     runtime = Runtime(bundle, threads=1)
+    guide = None
     if bundle.task == "image-to-shape":
         from model.preprocess import prepare_image
         x = prepare_image(_photo(), bundle.image_spec())[None]
@@ -181,14 +181,18 @@ def test_shipped_bundle_is_the_checkpoint_s_export_and_matches_it(name):
         o = bundle.octree
         tree = (scan_octree(cloud, o.depth, adaptive=o.adaptive) if bundle.task == "completion"
                 else build_octree(cloud, o.depth, adaptive=o.adaptive))
-        latent, xt = runtime.encode_octree(tree), OctreeTensors.from_octree(tree)
+        (latent, guide), xt = runtime.encode_scan(tree), OctreeTensors.from_octree(tree)
+    guide_t = None
     with torch.no_grad():
         assert np.abs(latent - model.encoder(xt).numpy()).max() <= 1e-4
         if bundle.task == "classify":
             want = torch.softmax(model.head(torch.from_numpy(latent)), 1).numpy()
             assert np.abs(runtime.classify(latent) - want).max() <= 1e-5
             return
-    a, b = runtime.decode(latent), decode(TorchSteps(model.decoder), latent)
+        if guide is not None:            # a guided decoder: the encoder's features of the scan, too
+            guide_t = model.encode_octree(tree)[1]
+            assert all(np.abs(guide.features[d] - guide_t.features[d].numpy()).max() <= 1e-4 for d in guide.features)
+    a, b = runtime.decode(latent, guide=guide), decode(TorchSteps(model.decoder), latent, guide=guide_t)
     for la, lb in zip(a.levels, b.levels):
         assert np.array_equal(la.key, lb.key) and np.array_equal(la.label, lb.label)
         assert np.abs(la.plane - lb.plane).max(initial=0) <= 1e-4

@@ -225,6 +225,10 @@ def test_guided_completion_reads_the_scans_features_trains_resumes_and_exports(s
     straight, summary = trains_and_resumes_identically(scan_data, tmp_path, task="completion",
                                                        structure_loss="balanced", skips=True)
     assert np.isfinite(summary["train"]["total"]) and straight.model.guided
+    # the skips add no weights: resuming without --skips would silently train another network
+    with pytest.raises(ValueError, match="skips=True"):
+        Trainer(config(scan_data, tmp_path / "a", task="completion", structure_loss="balanced", iters=6,
+                       ckpt_every=3, val_every=3))
     source, target = straight.train_set.pairs(np.arange(3))
     rows = matched_rows(source, target)
     for d, r in rows.items():             # a row points at the scan's octant with the same key, or past the end
