@@ -42,7 +42,6 @@ from model.data.render import R2N2_MAX_DISTANCE, render
 from model.data.shapes import CATEGORIES, generate
 from model.decode import decode
 from model.networks import TorchSteps
-from model.nn.tensors import OctreeTensors
 from model.octree import build_octree
 from model.octree.batch import merge_octrees, split_octree
 from model.octree.patches import patches_to_mesh
@@ -70,8 +69,8 @@ class TimedSteps:
     def start(self, latent):
         return self._timed("depth 2", self.steps.start, latent)
 
-    def predict(self, depth, x, neighbors):
-        return self._timed(f"depth {depth}", self.steps.predict, depth, x, neighbors)
+    def predict(self, depth, x, neighbors, *skip):
+        return self._timed(f"depth {depth}", self.steps.predict, depth, x, neighbors, *skip)
 
     def expand(self, depth, x, split):
         return self._timed(f"depth {depth}", self.steps.expand, depth, x, split)
@@ -87,18 +86,19 @@ def pipeline(kind: str, inputs: list, backend: str, model, runtime: Runtime | No
         x = merge_octrees([build_octree((pts, None), spec) for pts in inputs])
     times["preprocess"] = time.perf_counter() - t0
     t = time.perf_counter()
+    guide = None                 # a guided completion decoder's input features
     if runtime is not None:
-        latent = runtime.encode_image(x) if kind == "image" else runtime.encode_octree(x)
+        latent, guide = (runtime.encode_image(x), None) if kind == "image" else runtime.encode_scan(x)
         steps = runtime.steps()
     else:
         with torch.no_grad():
-            arg = torch.from_numpy(x) if kind == "image" else OctreeTensors.from_octree(x)
-            latent = model.encoder(arg).numpy()
+            latent, guide = (model.encoder(torch.from_numpy(x)), None) if kind == "image" else model.encode_octree(x)
+        latent = latent.numpy()
         steps = TorchSteps(model.decoder)
     times["encoder"] = time.perf_counter() - t
     t = time.perf_counter()
     dec = model.decoder
-    octree = decode(TimedSteps(steps, times), latent, dec.full_depth, dec.adaptive_depth)
+    octree = decode(TimedSteps(steps, times), latent, dec.full_depth, dec.adaptive_depth, guide=guide)
     decode_s = time.perf_counter() - t
     times["bookkeeping"] = decode_s - sum(v for k, v in times.items() if k.startswith("depth"))
     t = time.perf_counter()
