@@ -1,0 +1,68 @@
+"""Training curves: metrics rows read per split (a resumed run's repeated steps counted once),
+the moving average, the picture, and bad input refused in one line."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from model.curves import main, moving_average, read_curves
+
+
+def _write_run(folder, rows) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+
+
+def _rows(scale: float, resumed: bool = False) -> list[dict]:
+    train = [{"step": s, "split": "train", "lr": 1e-3, "seconds": 0.5 * s, "total": scale / s, "patch": 0.1}
+             for s in range(10, 210, 10)]
+    val = [{"step": s, "split": "val", "total": scale / s + 0.05, "patch": 0.12} for s in (100, 200)]
+    if resumed:        # killed after step 150, resumed from the step-100 checkpoint: 110..150 logged twice
+        first = [dict(r, total=7.0) for r in train[10:15]]
+        train = train[:10] + first + train[10:]
+    return train + val
+
+
+def test_rows_per_split_the_last_row_of_a_repeated_step_counts(tmp_path):
+    _write_run(tmp_path / "a", _rows(2.0, resumed=True))
+    c = read_curves(tmp_path / "a")
+    assert c.steps["train"].tolist() == list(range(10, 210, 10)) and c.steps["val"].tolist() == [100, 200]
+    assert c.values["train"]["total"][10:15] == pytest.approx([2.0 / s for s in range(110, 160, 10)])
+    assert c.values["val"]["total"] == pytest.approx([0.07, 0.06]) and c.seconds == 100.0
+    assert sorted(c.terms("val")) == ["patch", "total"]
+
+
+def test_moving_average_of_the_rows_before_each_skipping_gaps():
+    v = np.array([1.0, 2.0, np.nan, 4.0, 5.0])
+    assert moving_average(v, 2) == pytest.approx([1.0, 1.5, 2.0, 4.0, 4.5])
+    assert moving_average(v, 1)[2] != moving_average(v, 1)[2]          # NaN alone stays NaN
+    assert moving_average(v, 10) == pytest.approx([1.0, 1.5, 1.5, 7 / 3, 3.0])
+
+
+def test_the_picture_has_a_panel_per_term_and_bad_input_exits_2(tmp_path, capsys):
+    _write_run(tmp_path / "a", _rows(2.0))
+    _write_run(tmp_path / "b", _rows(4.0))
+    out = tmp_path / "curves.png"
+    assert main([str(tmp_path / "a"), str(tmp_path / "b"), "--labels", "A", "B", "--out", str(out)]) == 0
+    assert "total, patch of 2 run(s)" in capsys.readouterr().out
+    two = Image.open(out)
+    assert main([str(tmp_path / "a"), "--terms", "total", "--out", str(tmp_path / "one.png")]) == 0
+    one = Image.open(tmp_path / "one.png")
+    assert two.width > 1.8 * one.width and two.height == one.height
+    assert np.asarray(one.convert("L")).std() > 5                     # lines drawn, not a blank page
+    for args, needle in (([str(tmp_path / "nothing")], "no metrics.jsonl"),
+                         ([str(tmp_path / "a"), "--terms", "iou"], "no run logged iou"),
+                         ([str(tmp_path / "a"), "--labels", "x", "y"], "2 names for 1 runs"),
+                         ([str(tmp_path / "a"), "--window", "0"], "at least 1")):
+        assert main([*args, "--out", str(tmp_path / "bad.png")]) == 2
+        err = capsys.readouterr().err
+        assert needle in err and err.count("\n") == 1
+        assert not (tmp_path / "bad.png").exists()
+    (tmp_path / "c").mkdir()
+    (tmp_path / "c" / "metrics.jsonl").write_text('{"step": 1}\n')
+    assert main([str(tmp_path / "c"), "--out", str(tmp_path / "bad.png")]) == 2
+    assert "metrics.jsonl:1: not a metrics row" in capsys.readouterr().err
