@@ -22,9 +22,9 @@ from model.octree.build import MAX_BUILD_DEPTH
 from model.preprocess import ImageSpec, MaskSpec
 
 BUNDLE_FORMAT = 2
-"""The newest format this software reads; 2 adds guided decoders (``octree.guided``), which a
-format-1 reader could not run.  Bundles without them are written as format 1."""
-"""Version of the bundle layout written by this code; newer bundles are refused."""
+"""The newest bundle layout this code reads and writes; newer bundles are refused.  2 adds guided
+decoders (``octree.guided``), which a format-1 reader could not run, so bundles without them are
+still written as format 1."""
 MANIFEST = "model.json"
 TASKS = ("image-to-shape", "completion", "autoencoder", "classify")
 DTYPES = ("float32", "int64")

@@ -156,8 +156,9 @@ def probe_octrees(depth: int, batch: int = 3, seed: int = 0) -> Octree:
 
 def self_check(bundle_dir: Path, src: Loaded, batch: int = 3, seed: int = 0, foreground: Loaded | None = None) -> dict:
     """Decode (classify: score) random latent codes with onnxruntime and torch; raise if they
-    disagree (a guided decoder: the codes and features of :func:`probe_octrees`, encoded by both).  Returns the figures: max |difference| of planes on the common leaves and label
-    agreement (classify: of the probabilities)."""
+    disagree (a guided decoder: the codes and features of :func:`probe_octrees`, encoded by both).
+    Returns the figures: max |difference| of planes on the common leaves and label agreement
+    (classify: of the probabilities)."""
     runtime = Runtime(load_bundle(bundle_dir), threads=1)
     latent = np.random.default_rng(seed).uniform(-1, 1, (batch, src.config.latent)).astype(np.float32)
     if src.config.task == "classify":

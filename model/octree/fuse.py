@@ -64,8 +64,8 @@ def _from_leaves(like: Octree, leaves, neighbors: bool) -> Octree:
         error = np.full(n, np.nan, np.float32)
         npoints = np.zeros(n, np.int32)
         for lv, rows in leaves[d]:
-            at = np.searchsorted(key, lv.key[rows])
-            if len(rows) and (n == 0 or not np.array_equal(key[np.minimum(at, n - 1)], lv.key[rows])):
+            at = morton.lookup(key, lv.key[rows])
+            if np.any(at == n):
                 raise ValueError(f"depth {d}: leaves nest or lie outside the tree")
             label[at] = LEAF
             plane[at], error[at], npoints[at] = lv.plane[rows], lv.error[rows], lv.npoints[rows]
