@@ -1,6 +1,7 @@
 """Export a trained model to an ONNX bundle, or verify a bundle.
 
     python -m export CHECKPOINT_OR_RUN --out BUNDLE_DIR [--name NAME] [--force] [--foreground FG]
+        [--foreground-precision int8|float32]
     python -m export --verify BUNDLE_DIR
 
 Exit status 0 on success, 2 with one line on stderr when the input or bundle is unusable.
@@ -58,6 +59,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--foreground", default=None, metavar="FG",
                     help="image models: a foreground network's checkpoint or run folder, put in the bundle to "
                          "remove photos' backgrounds (python -m model.train foreground)")
+    ap.add_argument("--foreground-precision", choices=("int8", "float32"), default="int8",
+                    help="how the foreground network is stored: int8, statically quantised with generated photos "
+                         "(default; 2.5x faster, the same mask IoU), or float32 as trained")
     ap.add_argument("--verify", metavar="BUNDLE_DIR", default=None, help="verify a bundle instead of exporting")
     args = ap.parse_args(argv)
     from .bundle import BundleError
@@ -73,12 +77,15 @@ def main(argv: list[str] | None = None) -> int:
         if not args.source or not args.out:
             ap.error("SOURCE and --out are required (or --verify BUNDLE_DIR)")
         from .exporter import export
-        meta = export(args.source, args.out, name=args.name, force=args.force, foreground=args.foreground)
+        meta = export(args.source, args.out, name=args.name, force=args.force, foreground=args.foreground,
+                      foreground_precision=args.foreground_precision)
         check = meta["export"]["self_check"]
         agree = (f"probabilities within {check['probability_max_abs_diff']:.1e}" if "probability_max_abs_diff" in check
                  else f"labels {check['label_agreement']:.2%} equal, planes within {check['plane_max_abs_diff']:.1e}")
         print(f"{args.out}: {meta['task']} {meta['name']} {meta['version']}, {len(meta['graphs'])} graphs; "
-              f"onnxruntime vs torch: {agree}")
+              f"onnxruntime vs torch: {agree}" + (f"; foreground masks {check['foreground_pixel_agreement']:.2%} equal "
+                                                   f"({meta['export']['foreground_precision']})"
+                                                   if "foreground_pixel_agreement" in check else ""))
         return 0
     except (BundleError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)

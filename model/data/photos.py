@@ -247,6 +247,24 @@ def photo_split_view(images: np.ndarray, shape_id: str) -> Photo:
     return photo_composite(images[view], np.random.default_rng(seed), "test", TEST_STYLE)
 
 
+def generated_photos(per_category: int = 2, views: int = 2, seed: int = 0) -> list[Photo]:
+    """Training-like photos without a dataset: the generator's first ``per_category`` training
+    shapes of every category (dataset seed 0), each rendered from ``views`` random viewpoints as
+    the dataset renders them and composited on training backgrounds, all drawn from ``seed``.
+    What the export calibrates a quantised foreground network with."""
+    from .render import render_views
+    from .shapes import CATEGORIES, generate, split_of
+
+    rng = np.random.default_rng(seed)
+    photos = []
+    for category in CATEGORIES:
+        indices = (i for i in range(10 ** 6) if split_of(category, i) == "train")
+        for _, index in zip(range(per_category), indices):
+            images, _ = render_views(generate(category, index), n_views=views, rng=rng)
+            photos += [photo_composite(image, rng, "train") for image in images]
+    return photos
+
+
 ENCODER_STYLE = PhotoStyle(scale=(0.35, 0.95), short_side=(200, 320))
 """The composites the image model trains on: objects large enough that the crop keeps detail."""
 

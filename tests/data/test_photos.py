@@ -94,3 +94,24 @@ def test_object_crop_and_box():
     assert mask_box(np.zeros((5, 5))) is None
     with pytest.raises(ValueError):
         object_crop(np.zeros((8, 8, 4), np.uint8))
+
+
+def test_generated_photos_show_training_shapes_of_every_category_on_training_scenes(monkeypatch):
+    """The export's calibration photos need no dataset: every category's training shapes, rendered
+    and composited on training backgrounds only, the same for the same seed."""
+    from model.data.shapes import CATEGORIES, split_of
+    from model.data.shapes import generate as real_generate
+
+    shapes, used = [], []
+    monkeypatch.setattr("model.data.shapes.generate",
+                        lambda c, i, seed=0: shapes.append((c, i, seed)) or real_generate(c, i, seed))
+    monkeypatch.setattr(photos, "real_photo", lambda name: used.append(name) or np.zeros((300, 400, 3), np.uint8))
+    got = photos.generated_photos(per_category=1, views=2, seed=3)
+    assert len(got) == 2 * len(CATEGORIES) and len(shapes) == len(CATEGORIES)
+    assert {c for c, _, _ in shapes} == set(CATEGORIES)
+    assert all(split_of(c, i) == "train" and seed == 0 for c, i, seed in shapes)
+    assert set(used) <= set(TRAIN_PHOTOS)
+    for p in got:
+        assert p.rgb.ndim == 3 and p.rgb.shape[2] == 3 and p.box is not None and 0 < p.mask.mean() < 1
+    again = photos.generated_photos(per_category=1, views=2, seed=3)
+    assert all(np.array_equal(a.rgb, b.rgb) for a, b in zip(got, again))

@@ -276,3 +276,22 @@ def test_a_released_checkpoint_is_stored_in_half_precision_and_evaluated_as_stor
     meta = record_evaluation(out, json.loads((tmp_path / "e.json").read_text()))
     assert meta["evaluation"]["shapes"] > 0 and "per_shape" not in meta["evaluation"]
     assert load_model(out).meta["evaluation"] == meta["evaluation"]
+
+
+def test_release_packages_a_run_trained_by_hand_without_claiming_the_recipe(tiny_data, tmp_path, capsys):
+    """model.release --run: the run's own configuration and steps go into model.json, no recipe
+    training command; a missing run or a run of another task is refused (exit 2, one line) before
+    anything is built."""
+    from model.release import RECIPES, main as release_main, package
+
+    Trainer(config(tiny_data, tmp_path / "run", iters=2)).run()
+    meta = package(tmp_path / "run", tiny_data, tmp_path / "shipped", RECIPES["completion"],
+                   ["completion", "--workdir", "w", "--run", "run"], by_recipe=False)
+    assert meta["train_command"] is None and meta["teacher_command"] is None and meta["refine_command"] is None
+    assert meta["steps"] == 2 and meta["config"]["iters"] == 2 and meta["command"].endswith("--run run")
+    work = tmp_path / "work"
+    assert release_main(["foreground", "--workdir", str(work), "--run", str(tmp_path / "nothing")]) == 2
+    assert "checkpoint.pt not found" in capsys.readouterr().err
+    assert release_main(["foreground", "--workdir", str(work), "--run", str(tmp_path / "run")]) == 2
+    assert "not a foreground run" in capsys.readouterr().err
+    assert not work.exists()
