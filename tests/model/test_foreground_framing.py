@@ -49,8 +49,9 @@ def test_an_opaque_photo_is_cut_out_with_the_networks_mask_and_framed():
     rgb, mask = photo()
     net = Net()
     f = frame_object(rgb, SPEC, net)
-    # the object's square (84 px) is under half the photo: a second pass sees it at full resolution
-    assert net.calls == [(120, 200), (84, 84)] and f.mask_source == "network"
+    # the object's square (84 px) is under half the photo but smaller than the network's input
+    # (128 px): no second pass, which would see it enlarged and blurred
+    assert net.calls == [(120, 200)] and f.mask_source == "network"
     assert f.box == (30, 120, 90, 170) and np.array_equal(f.mask > 127, mask > 0.5)
     assert f.mask.shape == rgb.shape[:2] and f.mask.dtype == np.uint8
     # the object, 60 x 50, fills the square's side in its longest direction at the spec's ratio (0.9)
@@ -125,8 +126,8 @@ def test_an_object_touching_the_border_and_one_filling_the_photo():
     assert net.calls == [(120, 200)]                   # a large object: no second pass
 
 
-def test_a_small_object_is_segmented_again_at_full_resolution():
-    rgb, mask = photo(h=400, w=600, boxes=((280, 450, 340, 540),))
+def test_a_small_object_in_a_large_photo_is_segmented_again_at_full_resolution():
+    rgb, mask = photo(h=800, w=1200, boxes=((560, 900, 680, 1080),))
     calls = []
 
     def coarse(img):                                   # a network that sees a 16 px grid only
@@ -135,10 +136,10 @@ def test_a_small_object_is_segmented_again_at_full_resolution():
         return resize_mask(small, *img.shape[:2])
 
     f = frame_object(rgb, SPEC, coarse)
-    assert calls[0] == (400, 600) and calls[1][0] == calls[1][1] < 150
+    assert calls[0] == (800, 1200) and 128 <= calls[1][0] == calls[1][1] < 300   # its square, not upsampled
     got, truth = f.mask > 127, mask > 0.5
     iou = (got & truth).sum() / (got | truth).sum()
-    once = resize_mask(resize_mask(mask, 16, 16), 400, 600) > 0.5
+    once = resize_mask(resize_mask(mask, 16, 16), 800, 1200) > 0.5
     assert iou > 0.85 > (once & truth).sum() / (once | truth).sum()
 
 
@@ -157,7 +158,7 @@ def test_mask_input_and_output_map_between_the_photo_and_the_network():
 
 
 def test_when_the_second_look_finds_nothing_the_first_stands():
-    rgb, mask = photo(h=400, w=600, boxes=((280, 450, 340, 540),))
+    rgb, mask = photo(h=800, w=1200, boxes=((560, 900, 680, 1080),))
     calls = []
 
     def forgetful(img):                                # finds the object in the photo, not in its square
@@ -165,4 +166,4 @@ def test_when_the_second_look_finds_nothing_the_first_stands():
         return Net()(img) if len(calls) == 1 else np.zeros(img.shape[:2], np.float32)
 
     f = frame_object(rgb, SPEC, forgetful)
-    assert len(calls) == 2 and f.box == (280, 450, 340, 540)
+    assert len(calls) == 2 and f.box == (560, 900, 680, 1080)
