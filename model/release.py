@@ -188,12 +188,13 @@ def main(argv: list[str] | None = None) -> int:
                                    "--teacher", str(final)]))
         final = work / "refined"
     if args.run is not None:
+        from .train.config import load_checkpoint
         final = Path(args.run)
-        if not (final / "checkpoint.pt").is_file():
-            print(f"python -m model.release: {final / 'checkpoint.pt'} not found: --run takes a run folder "
-                  "of python -m model.train", file=sys.stderr)
+        try:
+            trained = load_checkpoint(final / "checkpoint.pt")["config"].get("task")
+        except (FileNotFoundError, ValueError) as exc:
+            print(f"python -m model.release: {exc} (--run takes a run folder of python -m model.train)", file=sys.stderr)
             return 2
-        trained = json.loads((final / "config.json").read_text()).get("task") if (final / "config.json").is_file() else None
         if trained != recipe.train[0]:
             print(f"python -m model.release: {final} is a {trained} run, not a {recipe.train[0]} run", file=sys.stderr)
             return 2

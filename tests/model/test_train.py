@@ -280,7 +280,7 @@ def test_a_released_checkpoint_is_stored_in_half_precision_and_evaluated_as_stor
 
 def test_release_packages_a_run_trained_by_hand_without_claiming_the_recipe(tiny_data, tmp_path, capsys):
     """model.release --run: the run's own configuration and steps go into model.json, no recipe
-    training command; a missing run or a run of another task is refused (exit 2, one line) before
+    training command; a missing or damaged run or a run of another task is refused (exit 2, one line) before
     anything is built."""
     from model.release import RECIPES, main as release_main, package
 
@@ -292,6 +292,10 @@ def test_release_packages_a_run_trained_by_hand_without_claiming_the_recipe(tiny
     work = tmp_path / "work"
     assert release_main(["foreground", "--workdir", str(work), "--run", str(tmp_path / "nothing")]) == 2
     assert "checkpoint.pt not found" in capsys.readouterr().err
+    (tmp_path / "damaged").mkdir()
+    (tmp_path / "damaged" / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    assert release_main(["foreground", "--workdir", str(work), "--run", str(tmp_path / "damaged")]) == 2
+    assert "not a readable checkpoint" in capsys.readouterr().err
     assert release_main(["foreground", "--workdir", str(work), "--run", str(tmp_path / "run")]) == 2
     assert "not a foreground run" in capsys.readouterr().err
     assert not work.exists()
