@@ -61,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
                          "remove photos' backgrounds (python -m model.train foreground)")
     ap.add_argument("--foreground-precision", choices=("int8", "float32"), default="int8",
                     help="how the foreground network is stored: int8, statically quantised with generated photos "
-                         "(default; 2.5x faster, the same mask IoU), or float32 as trained")
+                         "(default; 2.1x faster, the same mask IoU), or float32 as trained")
     ap.add_argument("--verify", metavar="BUNDLE_DIR", default=None, help="verify a bundle instead of exporting")
     args = ap.parse_args(argv)
     from .bundle import BundleError

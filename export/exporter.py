@@ -127,7 +127,7 @@ def export_graphs(src: Loaded) -> list[G.Graph]:
 
 
 FOREGROUND_PRECISIONS = ("int8", "float32")
-"""How the export stores the foreground network: statically quantised (the default: 2.5x faster
+"""How the export stores the foreground network: statically quantised (the default: 2.1x faster
 in onnxruntime, the same mask IoU, docs/RESULTS.md) or as trained."""
 
 FOREGROUND_INT8_AGREEMENT = 0.99

@@ -394,7 +394,7 @@ def evaluate_foreground(model, cfg: TrainConfig, run: str, split: str = "test", 
     """Mask IoU of the foreground network on each shape's photo-like test view (a render on a
     held-out background, no alpha: :func:`model.data.photos.photo_split_view`), at the photo's own
     resolution, through the service's path (:func:`model.preprocess.object_mask`: clean-up, a second
-    pass on small objects; a photo where it finds nothing scores 0); per category and overall, with the share of photos above 0.9."""
+    pass on a small object in a large photo; a photo where it finds nothing scores 0); per category and overall, with the share of photos above 0.9."""
     from .data.photos import photo_split_view
     from .preprocess import NoObjectError, mask_input, mask_iou, mask_output, object_mask
 

@@ -292,8 +292,8 @@ def object_mask(rgb: np.ndarray, segment, spec: MaskSpec) -> np.ndarray:
     """(H, W) float32 object mask of an opaque image from ``segment`` (the foreground network: an
     (h, w, 3) uint8 image to its (h, w) object probability), specks removed (:func:`clean_mask`;
     NoObjectError when nothing is left); a small object in a large photo is segmented again in its
-    square (see :class:`MaskSpec`), the second mask replacing the first there and clearing it elsewhere (unless
-    it finds nothing: then the first stands)."""
+    square (see :class:`MaskSpec`), the second mask replacing the first there and clearing it
+    elsewhere (unless it finds nothing: then the first stands)."""
     h, w = rgb.shape[:2]
     mask = clean_mask(np.asarray(segment(rgb), np.float32), spec)
     top, left, bottom, right = mask_bounds(mask > 0.5)
@@ -336,9 +336,10 @@ def frame_object(rgba: np.ndarray, spec: ImageSpec, segment=None, remove_backgro
     The mask: an image with transparency (some alpha below 250) uses its alpha; otherwise, unless
     ``remove_background`` is "false", ``segment`` (a callable from (H, W, 3) uint8 to an (H, W)
     object probability, the foreground network) gives it (:func:`object_mask`: specks removed, a
-    small object segmented again at full resolution; NoObjectError when nothing is found).  The masked object is composited on ``spec.background``
-    and framed by :func:`prepare_image` (its crop box, a square the object fills
-    ``foreground_ratio`` of, resized).  Without a mask, :func:`prepare_image` alone (an opaque image
+    small object in a large photo segmented again at full resolution; NoObjectError when nothing
+    is found).  The masked object is composited on ``spec.background`` and framed by
+    :func:`prepare_image` (its crop box, a square the object fills ``foreground_ratio`` of,
+    resized).  Without a mask, :func:`prepare_image` alone (an opaque image
     is cropped by its border colour)."""
     if remove_background not in REMOVE_BACKGROUND:
         raise ImageError(f"remove_background must be one of {', '.join(REMOVE_BACKGROUND)}, got {remove_background!r}")
