@@ -175,19 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     from .evaluate import main as evaluate_main
     from .train.__main__ import main as train_main
 
-    threads = ["--threads", str(args.threads), "--quiet"]
-    steps = [(build_main, ["build", "--out", str(data), "--workers", str(args.workers), "--quiet", *recipe.build])]
-    if recipe.teacher:
-        steps.append((train_main, [*recipe.teacher, "--data", str(data), "--out", str(teacher), *threads]))
-    steps.append((train_main, [*recipe.train, "--data", str(data), "--out", str(run), *threads,
-                               *(["--teacher", str(teacher)] if recipe.teacher else [])]))
-    if recipe.calibrate:
-        steps.append((calibrate_main, [str(run), "--data", str(data), "--out", str(final)]))
-    if recipe.refine:
-        steps.append((train_main, [*recipe.refine, "--data", str(data), "--out", str(work / "refined"), *threads,
-                                   "--teacher", str(final)]))
-        final = work / "refined"
-    if args.run is not None:
+    if args.run is not None:                       # a run trained by hand: checked before anything is built
         from .train.config import load_checkpoint
         final = Path(args.run)
         try:
@@ -198,7 +186,19 @@ def main(argv: list[str] | None = None) -> int:
         if trained != recipe.train[0]:
             print(f"python -m model.release: {final} is a {trained} run, not a {recipe.train[0]} run", file=sys.stderr)
             return 2
-        steps = steps[:1]
+    threads = ["--threads", str(args.threads), "--quiet"]
+    steps = [(build_main, ["build", "--out", str(data), "--workers", str(args.workers), "--quiet", *recipe.build])]
+    if args.run is None:
+        if recipe.teacher:
+            steps.append((train_main, [*recipe.teacher, "--data", str(data), "--out", str(teacher), *threads]))
+        steps.append((train_main, [*recipe.train, "--data", str(data), "--out", str(run), *threads,
+                                   *(["--teacher", str(teacher)] if recipe.teacher else [])]))
+        if recipe.calibrate:
+            steps.append((calibrate_main, [str(run), "--data", str(data), "--out", str(final)]))
+        if recipe.refine:
+            steps.append((train_main, [*recipe.refine, "--data", str(data), "--out", str(work / "refined"), *threads,
+                                       "--teacher", str(final)]))
+            final = work / "refined"
     for fn, fn_args in steps:
         code = fn(fn_args)
         if code:
