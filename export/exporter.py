@@ -28,6 +28,7 @@ from model.octree.batch import merge_octrees
 from model.octree.pointcloud import SCAN_FRAME_MARGIN
 from model.preprocess import MaskSpec
 from model.checkpoint import Loaded, load_model
+from model.train.tasks import TASKS
 
 from . import graphs as G
 from .bundle import BUNDLE_FORMAT, MANIFEST, BundleError, GraphSpec, load_bundle
@@ -98,7 +99,7 @@ def _io_spec(src: Loaded, task: str, foreground: Loaded | None = None) -> tuple[
         spec = src.config.image_spec()
         inp = {"kind": "image", "image": dataclasses.asdict(spec)}
         if foreground is not None:
-            inp["foreground"] = MaskSpec(size=foreground.config.image_size).to_dict()
+            inp["foreground"] = TASKS["foreground"].spec(foreground.config).to_dict()
     else:
         inp = {"kind": "points", "points": {**POINT_LIMITS, "normals": "estimated when absent"}}
         if task == "completion":

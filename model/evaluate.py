@@ -398,7 +398,7 @@ def evaluate_foreground(model, cfg: TrainConfig, run: str, split: str = "test", 
     from .data.photos import photo_split_view
     from .preprocess import NoObjectError, mask_input, mask_iou, mask_output, object_mask
 
-    spec = runtime.bundle.mask_spec() if runtime is not None else MaskSpec(size=cfg.image_size)
+    spec = runtime.bundle.mask_spec() if runtime is not None else TASKS[cfg.task].spec(cfg)
 
     def segment(rgb: np.ndarray) -> np.ndarray:
         if runtime is not None:

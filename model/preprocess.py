@@ -216,9 +216,11 @@ class MaskSpec:
     ``refine``: when the object's square (its box's longest side grown by ``refine_margin`` on each
     side) covers less than this share of the image and has at least ``size`` pixels a side, the
     network runs a second time on that square, so that a small object in a large photo is seen at
-    the network's full resolution (0: never).  A smaller square is not looked at again: enlarged to
-    ``size`` it is blurred as no training photo is, and the second mask was worse than the first
-    (validation IoU 0.814 against 0.836 without those second looks, docs/RESULTS.md)."""
+    the network's full resolution (0: never); ``refine_min``: the smallest square side looked at
+    again (None: ``size``).  A network trained without second looks' views keeps the default: a
+    smaller square, enlarged to ``size``, is blurred as none of its training photos is, and its
+    second mask was worse than the first (validation IoU 0.814 against 0.836 without those second
+    looks, docs/RESULTS.md)."""
 
     size: int = 128
     mean: tuple[float, float, float] = (0.5, 0.5, 0.5)
@@ -227,6 +229,12 @@ class MaskSpec:
     keep: float = 0.1
     refine: float = 0.5
     refine_margin: float = 0.2
+    refine_min: int | None = None
+
+    @property
+    def refine_side(self) -> int:
+        """The smallest square side that gets a second look."""
+        return self.size if self.refine_min is None else self.refine_min
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -288,6 +296,16 @@ def clean_mask(mask: np.ndarray, spec: MaskSpec) -> np.ndarray:
     return np.where(kept, mask, 0.0).astype(np.float32)
 
 
+def object_square(box: tuple[int, int, int, int], height: int, width: int, margin: float) -> tuple[int, int, int, int]:
+    """(y0, y1, x0, x1), exclusive: the square about ``box`` (top, left, bottom, right) whose side
+    is the box's longest side grown by ``margin`` on each side, clipped to a height x width image:
+    where the second look (:func:`object_mask`) segments a small object again."""
+    top, left, bottom, right = box
+    side = int(round(max(bottom - top, right - left) * (1 + 2 * margin)))
+    ty, tx = int(round((top + bottom - side) / 2)), int(round((left + right - side) / 2))
+    return max(0, ty), min(height, ty + side), max(0, tx), min(width, tx + side)
+
+
 def object_mask(rgb: np.ndarray, segment, spec: MaskSpec) -> np.ndarray:
     """(H, W) float32 object mask of an opaque image from ``segment`` (the foreground network: an
     (h, w, 3) uint8 image to its (h, w) object probability), specks removed (:func:`clean_mask`;
@@ -296,11 +314,8 @@ def object_mask(rgb: np.ndarray, segment, spec: MaskSpec) -> np.ndarray:
     elsewhere (unless it finds nothing: then the first stands)."""
     h, w = rgb.shape[:2]
     mask = clean_mask(np.asarray(segment(rgb), np.float32), spec)
-    top, left, bottom, right = mask_bounds(mask > 0.5)
-    side = int(round(max(bottom - top, right - left) * (1 + 2 * spec.refine_margin)))
-    ty, tx = int(round((top + bottom - side) / 2)), int(round((left + right - side) / 2))
-    y0, y1, x0, x1 = max(0, ty), min(h, ty + side), max(0, tx), min(w, tx + side)
-    if (y1 - y0) * (x1 - x0) >= spec.refine * h * w or min(y1 - y0, x1 - x0) < spec.size:
+    y0, y1, x0, x1 = object_square(mask_bounds(mask > 0.5), h, w, spec.refine_margin)
+    if (y1 - y0) * (x1 - x0) >= spec.refine * h * w or min(y1 - y0, x1 - x0) < spec.refine_side:
         return mask
     fine = np.zeros_like(mask)
     fine[y0:y1, x0:x1] = np.asarray(segment(np.ascontiguousarray(rgb[y0:y1, x0:x1])), np.float32)

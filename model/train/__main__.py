@@ -71,6 +71,9 @@ def common_options() -> argparse.ArgumentParser:
                    help="where the network trains: cpu (default), cuda or cuda:N; batches are prepared on the CPU")
     c.add_argument("--amp", action="store_true",
                    help="mixed precision: the forward pass in bfloat16 autocast (default: float32)")
+    c.add_argument("--init", default=None,
+                   help="a run or checkpoint folder of the same task and network whose weights a new run "
+                        "starts from (fine-tuning; optimizer and schedule start afresh; default: random weights)")
     return c
 
 
@@ -108,6 +111,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     f.add_argument("--arch", choices=("unet",), default="unet", help="unet (default): a compact U-Net")
     f.add_argument("--width", dest="encoder_width", type=int, default=None,
                    help="the U-Net's first-stage channels, doubling per stage up to 8x (default 8)")
+    f.add_argument("--crop-share", type=float, default=0.0,
+                   help="share of the samples that are a second look's view: the object's square cut from "
+                        "the photo, as the service looks again at a small object (default 0)")
     f.add_argument("--image-size", type=int, default=128,
                    help="the network's input side: photos are resized to it (default 128, a multiple of 16)")
     c = sub.add_parser("completion", parents=[common],

@@ -59,6 +59,8 @@ class TrainConfig:
     amp: bool = False                          # bfloat16 autocast of the forward pass
     up: str = "y"                              # classify: the up axis of the dataset's shapes
     skips: bool = False                        # completion: output-guided skip connections
+    crop_share: float = 0.0                    # foreground: samples that are a second look's view
+    init: str | None = None                    # a run or checkpoint folder whose weights a new run starts from
 
     def image_spec(self) -> ImageSpec:
         """The preprocessing of an image task's encoder (its input side and framing)."""

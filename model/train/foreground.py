@@ -3,27 +3,55 @@
 Every sample is a random view of a shape placed on a random background by
 :func:`model.data.photos.photo_composite`, made into the network's input by the same
 :func:`model.preprocess.mask_input` the service runs; its target is the exact alpha, box-filtered
-to the network's resolution.  Validation draws one fixed composite per shape (training
-backgrounds; the held-out photographs are for the test split only).
+to the network's resolution.  A share of the samples (``crop_share``) is what a second look sees
+(:func:`second_look`): the object's square cut from the photo and enlarged to the network's input.
+Validation draws one fixed composite per shape (training backgrounds; the held-out photographs
+are for the test split only).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..data.photos import photo_composite
+from ..data.photos import Photo, mask_box, photo_composite
 from ..data.shapes import stable_hash
-from ..preprocess import MaskSpec, mask_input, resize_mask
+from ..preprocess import MaskSpec, mask_input, object_square, resize_mask
 from .data import Sample
 
+BOX_ERROR = 0.1
+"""The largest error of each edge of the first look's box, as a share of the box's longest side."""
 
-def mask_batch(samples: list[Sample], spec: MaskSpec, rng: np.random.Generator | None) -> tuple[np.ndarray, np.ndarray]:
-    """(B, 3, S, S) network inputs and (B, 1, S, S) target coverage in [0, 1] of ``samples``."""
+
+def second_look(photo: Photo, rng: np.random.Generator, spec: MaskSpec) -> Photo:
+    """What :func:`model.preprocess.object_mask`'s second look cuts from ``photo``: the square about
+    the object's box (its edges moved by up to :data:`BOX_ERROR`, as a first look's mask places
+    them), with ``spec.refine_margin``; ``photo`` itself when the object is not in it or the square
+    covers ``spec.refine`` of the photo or more (no second look then)."""
+    if photo.box is None:
+        return photo
+    h, w = photo.mask.shape
+    top, left, bottom, right = photo.box
+    error = np.round(rng.uniform(-BOX_ERROR, BOX_ERROR, 4) * max(bottom - top, right - left)).astype(int)
+    top, left = top + int(error[0]), left + int(error[1])
+    bottom, right = max(top + 1, bottom + int(error[2])), max(left + 1, right + int(error[3]))
+    y0, y1, x0, x1 = object_square((top, left, bottom, right), h, w, spec.refine_margin)
+    if y1 - y0 < 2 or x1 - x0 < 2 or (y1 - y0) * (x1 - x0) >= spec.refine * h * w:
+        return photo
+    mask = photo.mask[y0:y1, x0:x1]
+    return Photo(np.ascontiguousarray(photo.rgb[y0:y1, x0:x1]), np.ascontiguousarray(mask), mask_box(mask))
+
+
+def mask_batch(samples: list[Sample], spec: MaskSpec, rng: np.random.Generator | None,
+               crop_share: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """(B, 3, S, S) network inputs and (B, 1, S, S) target coverage in [0, 1] of ``samples``, a
+    ``crop_share`` of them second looks' views."""
     images = np.empty((len(samples), 3, spec.size, spec.size), np.float32)
     masks = np.empty((len(samples), 1, spec.size, spec.size), np.float32)
     for i, s in enumerate(samples):
         r = rng if rng is not None else np.random.default_rng(stable_hash("foreground-val", s.shape_id))
         photo = photo_composite(s.images[int(r.integers(len(s.images)))], r, "train")
+        if crop_share > 0 and r.random() < crop_share:
+            photo = second_look(photo, r, spec)
         images[i] = mask_input(photo.rgb, spec)
         masks[i, 0] = np.clip(resize_mask(photo.mask, spec.size, spec.size), 0, 1)
     return images, masks

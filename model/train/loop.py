@@ -18,7 +18,7 @@ import torch
 from torch import distributed as dist
 
 from ..files import atomic_path, json_text
-from .config import TrainConfig, config_from_dict, load_checkpoint
+from .config import TrainConfig, config_from_dict, load_checkpoint, read_run
 from .data import RecordSet
 from .tasks import TASKS, check_config
 
@@ -47,6 +47,30 @@ def _prepared(call: tuple[str, int]) -> bytes:
 
 def _quiet_worker() -> None:
     torch.set_num_threads(1)
+
+
+def initial_weights(cfg: TrainConfig, model: torch.nn.Module) -> dict[str, torch.Tensor]:
+    """The weights of the run or checkpoint folder ``cfg.init``, for ``model``: ValueError when it
+    is neither folder, of another task or architecture, or its tensors do not fit ``model``."""
+    source = read_run(cfg.init)
+    for key in ("task", "arch"):
+        if getattr(source.config, key) != getattr(cfg, key):
+            raise ValueError(f"--init {cfg.init} is a {key} {getattr(source.config, key)!r} run, not {getattr(cfg, key)!r}")
+    ours = model.state_dict()
+    for key in sorted(set(ours) | set(source.weights)):
+        theirs = source.weights.get(key)
+        if key not in ours or theirs is None or theirs.shape != ours[key].shape:
+            settings = ", ".join(f"{k}={getattr(source.config, k)!r}" for k in INIT_SETTINGS
+                                 if getattr(source.config, k) != getattr(cfg, k)) or "another network"
+            raise ValueError(f"--init {cfg.init} does not fit this network (its {key}: "
+                             f"{tuple(theirs.shape) if theirs is not None else 'absent'}, here "
+                             f"{tuple(ours[key].shape) if key in ours else 'absent'}; it was trained with {settings})")
+    return source.weights
+
+
+INIT_SETTINGS = ("latent", "channels", "pred_hidden", "decoder_blocks", "encoder", "encoder_width", "image_size",
+                 "categories")
+"""Settings that shape a network, named when ``--init``'s weights do not fit."""
 
 
 class Prefetcher:
@@ -136,6 +160,8 @@ class Trainer:
 
     def _resume(self) -> None:
         if not self.ckpt_path.is_file():
+            if self.cfg.init is not None:
+                self.model.load_state_dict(initial_weights(self.cfg, self.model))
             if self.rank == 0:
                 (self.out / "config.json").write_text(json.dumps(asdict(self.cfg), indent=1) + "\n")
             return
@@ -143,7 +169,7 @@ class Trainer:
         saved = asdict(config_from_dict(state["config"]))
         for key in ("task", "arch", "depth", "latent", "channels", "batch_size", "seed", "structure_loss",
                     "pred_hidden", "decoder_blocks", "encoder", "encoder_width", "image_size", "categories",
-                    "teacher", "up", "skips"):
+                    "teacher", "up", "skips", "crop_share", "init"):
             if saved[key] != getattr(self.cfg, key):
                 raise ValueError(f"{self.ckpt_path} was trained with {key}={saved[key]!r}, not "
                                  f"{getattr(self.cfg, key)!r}; use another --out")

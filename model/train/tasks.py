@@ -272,9 +272,13 @@ class ForegroundTask:
             raise ValueError(f"unknown foreground network {cfg.arch!r}; choose unet")
         if cfg.image_size % 16 or not 32 <= cfg.image_size <= 512:
             raise ValueError(f"--image-size must be a multiple of 16 in 32..512, got {cfg.image_size}")
+        if not 0 <= cfg.crop_share <= 1:
+            raise ValueError(f"--crop-share must be in 0..1, got {cfg.crop_share}")
 
     def spec(self, cfg) -> MaskSpec:
-        return MaskSpec(size=cfg.image_size)
+        """How the network takes images: a network trained on second looks' views (``crop_share``)
+        looks again at small squares too (:data:`TRAINED_REFINE_MIN`)."""
+        return MaskSpec(size=cfg.image_size, refine_min=TRAINED_REFINE_MIN if cfg.crop_share > 0 else None)
 
     def dataset(self, cfg, split, seed, points=2048, limit=None):
         # renders only: a dataset of any octree depth serves (the same shapes, the same renders)
@@ -286,12 +290,16 @@ class ForegroundTask:
         return ForegroundModel(cfg.encoder_width or FOREGROUND_WIDTH)
 
     def inputs(self, cfg, dataset, indices, rng):
-        images, masks = mask_batch([dataset.samples[i] for i in indices], self.spec(cfg), rng)
+        images, masks = mask_batch([dataset.samples[i] for i in indices], self.spec(cfg), rng, cfg.crop_share)
         return torch.from_numpy(images), torch.from_numpy(masks)
 
     def encode(self, model, cfg, dataset, indices):
         raise ValueError("the foreground network has no latent code")
 
+
+TRAINED_REFINE_MIN = 32
+"""The smallest square a network trained on second looks' views looks at again (chosen on the
+validation split, docs/RESULTS.md)."""
 
 FOREGROUND_WIDTH = 8
 """The foreground U-Net's default width (its first stage's channels)."""

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from model.preprocess import (ImageError, ImageSpec, MaskSpec, NoObjectError, clean_mask, frame_object,
-                              mask_input, mask_output, resize_mask)
+                              mask_bounds, mask_input, mask_output, object_mask, object_square, resize_mask)
 
 SPEC = ImageSpec(size=64)
 
@@ -141,6 +141,25 @@ def test_a_small_object_in_a_large_photo_is_segmented_again_at_full_resolution()
     iou = (got & truth).sum() / (got | truth).sum()
     once = resize_mask(resize_mask(mask, 16, 16), 800, 1200) > 0.5
     assert iou > 0.85 > (once & truth).sum() / (once | truth).sum()
+
+
+def test_a_small_square_is_looked_at_again_only_by_a_network_trained_for_it():
+    rgb, _ = photo(h=400, w=600, boxes=((300, 450, 340, 510),))     # its square: 84 px a side
+    for spec, looks in ((MaskSpec(size=128), 1), (MaskSpec(size=128, refine_min=32), 2),
+                        (MaskSpec(size=128, refine_min=90), 1)):
+        net = Net()
+        mask = object_mask(rgb, net, spec)
+        assert len(net.calls) == looks and mask_bounds(mask > 0.5) == (300, 450, 340, 510)
+    assert net.calls[0] == (400, 600)
+    net = Net()
+    object_mask(rgb, net, MaskSpec(size=128, refine_min=32))
+    assert net.calls[1] == (84, 84)
+
+
+def test_the_object_square_is_centred_on_the_box_and_clipped_to_the_image():
+    assert object_square((40, 60, 60, 100), 200, 300, 0.25) == (20, 80, 50, 110)
+    assert object_square((40, 60, 60, 100), 200, 300, 0.0) == (30, 70, 60, 100)
+    assert object_square((0, 250, 10, 300), 200, 300, 0.5) == (0, 55, 225, 300)
 
 
 def test_mask_input_and_output_map_between_the_photo_and_the_network():

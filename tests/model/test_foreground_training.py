@@ -47,6 +47,63 @@ def test_foreground_training_resumes_to_identical_weights_and_reports_iou(tiny_d
         Trainer(config(tiny_data, tmp_path / "bad", **{**FG, "image_size": 40}))
 
 
+def test_a_second_looks_view_is_the_objects_square_cut_from_the_photo():
+    from model.data.photos import Photo, mask_box
+    from model.preprocess import MaskSpec
+    from model.train.foreground import BOX_ERROR, second_look
+
+    spec = MaskSpec(size=32)
+    rgb = np.random.default_rng(0).integers(0, 256, (300, 400, 3), dtype=np.uint8)
+    mask = np.zeros((300, 400), np.float32)
+    mask[200:240, 300:360] = 1                           # a 40 x 60 object off-centre
+    photo = Photo(rgb, mask, mask_box(mask))
+    for seed in range(20):
+        view = second_look(photo, np.random.default_rng(seed), spec)
+        h, w = view.mask.shape
+        assert h == w and 60 * (1 + 2 * spec.refine_margin) * (1 - 2 * BOX_ERROR) <= h <= 60 * 1.4 * (1 + 2 * BOX_ERROR) + 1
+        assert view.mask.sum() == mask.sum()             # the whole object, cut with its pixels
+        top, left = next((y, x) for y in range(300 - h + 1) for x in range(400 - w + 1)
+                         if np.array_equal(rgb[y:y + h, x:x + w], view.rgb))
+        assert np.array_equal(view.mask, mask[top:top + h, left:left + w])
+    big = mask.copy()
+    big[20:280, 40:360] = 1                              # the square would cover most of the photo
+    assert second_look(Photo(rgb, big, mask_box(big)), np.random.default_rng(0), spec).rgb is rgb
+    empty = Photo(rgb, np.zeros_like(mask), None)
+    assert second_look(empty, np.random.default_rng(0), spec) is empty
+
+
+def test_a_network_trained_on_second_looks_looks_again_at_small_squares(tiny_data, tmp_path):
+    from model.train.tasks import TRAINED_REFINE_MIN
+
+    t = Trainer(config(tiny_data, tmp_path / "crops", iters=2, crop_share=1.0, **FG))
+    plain = Trainer(config(tiny_data, tmp_path / "plain", iters=2, **FG))
+    assert plain.task.spec(plain.cfg).refine_side == 32 and t.task.spec(t.cfg).refine_side == TRAINED_REFINE_MIN
+    idx = t.batch_indices(0)
+    a, _ = t.task.inputs(t.cfg, t.train_set, idx, np.random.default_rng(0))
+    b, _ = plain.task.inputs(plain.cfg, plain.train_set, idx, np.random.default_rng(0))
+    assert a.shape == b.shape and not torch.equal(a, b)
+    with pytest.raises(ValueError, match="--crop-share"):
+        Trainer(config(tiny_data, tmp_path / "bad", crop_share=1.5, **FG))
+
+
+def test_a_run_started_from_another_runs_weights(tiny_data, tmp_path, capsys):
+    from model.train.__main__ import main
+
+    Trainer(config(tiny_data, tmp_path / "a", iters=2, **FG)).run()
+    source = torch.load(tmp_path / "a" / "checkpoint.pt", weights_only=False)["model"]
+    tuned = Trainer(config(tiny_data, tmp_path / "b", iters=2, init=str(tmp_path / "a"), crop_share=0.5, **FG))
+    assert tuned.step == 0 and all(torch.equal(tuned.model.state_dict()[k], v) for k, v in source.items())
+    assert json.loads((tmp_path / "b" / "config.json").read_text())["init"] == str(tmp_path / "a")
+    fresh = Trainer(config(tiny_data, tmp_path / "c", iters=2, **FG)).model.state_dict()
+    assert any(not torch.equal(fresh[k], v) for k, v in source.items() if v.is_floating_point())
+    args = ["foreground", "--data", str(tiny_data), "--depth", "5", "--out", str(tmp_path / "d"), "--quiet",
+            "--image-size", "32", "--iters", "1"]
+    for init, needle in ((tmp_path / "a", "encoder_width=4"), (tmp_path / "none", "neither a run folder")):
+        assert main(args + ["--init", str(init)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0]
+
+
 @pytest.fixture(scope="module")
 def runs(tiny_data, tmp_path_factory):
     root = tmp_path_factory.mktemp("fg_runs")

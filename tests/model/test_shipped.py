@@ -103,9 +103,10 @@ def _photo_of_an_unseen_chair(seed: int = 0):
 
 def _finds_the_object_in_a_photo(loaded, meta):
     """An unseen chair on held-out photographs: the mask finds it (IoU with the exact mask)."""
-    from model.preprocess import MaskSpec, mask_input, mask_output, object_mask
+    from model.preprocess import mask_input, mask_output, object_mask
+    from model.train.tasks import TASKS
 
-    spec = MaskSpec(size=loaded.config.image_size)
+    spec = TASKS["foreground"].spec(loaded.config)
 
     def segment(rgb):
         with torch.no_grad():
