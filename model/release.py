@@ -101,7 +101,7 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
     recorded (its configuration and steps are)."""
     import torch
 
-    from .train.config import half_precision, load_checkpoint
+    from .train.config import INIT_FILE, half_precision, load_checkpoint
 
     state = load_checkpoint(run / "checkpoint.pt")
     calibration, teacher = state.get("calibration"), state["config"].get("teacher")
@@ -123,6 +123,7 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
         "parameters": int(sum(v.numel() for v in state["model"].values() if v.is_floating_point())),
         "config": {k: v for k, v in state["config"].items() if k not in ("data", "out", "progress")},
         "steps": state["step"],
+        "init": json.loads((run / INIT_FILE).read_text()) if (run / INIT_FILE).is_file() else None,
         "calibration": calibration,
         "command": "python -m model.release " + " ".join(shlex.quote(c) for c in command),
         "train_command": ("python -m model.train " + " ".join(shlex.quote(c) for c in recipe.train)

@@ -149,6 +149,11 @@ KEEP_SCAN_FILE = "keep_scan.json"
 in model.json's ``keep_scan``), written by ``python -m model.calibrate --keep-scan``."""
 
 
+INIT_FILE = "init.json"
+"""A run folder's record of the weights it started from (``--init``): the folder given, its
+weights' sha256 (a checkpoint folder's) and steps; :mod:`model.release` copies it to model.json."""
+
+
 def read_run(path: str | Path) -> SavedRun:
     """The configuration and weights of a run folder or a checkpoint folder.  ValueError if ``path``
     is neither, or its weights do not match the checksum model.json records.  Half-precision

@@ -18,7 +18,7 @@ import torch
 from torch import distributed as dist
 
 from ..files import atomic_path, json_text
-from .config import TrainConfig, config_from_dict, load_checkpoint, read_run
+from .config import INIT_FILE, TrainConfig, config_from_dict, load_checkpoint, read_run
 from .data import RecordSet
 from .tasks import TASKS, check_config
 
@@ -49,9 +49,10 @@ def _quiet_worker() -> None:
     torch.set_num_threads(1)
 
 
-def initial_weights(cfg: TrainConfig, model: torch.nn.Module) -> dict[str, torch.Tensor]:
-    """The weights of the run or checkpoint folder ``cfg.init``, for ``model``: ValueError when it
-    is neither folder, of another task or architecture, or its tensors do not fit ``model``."""
+def initial_weights(cfg: TrainConfig, model: torch.nn.Module) -> tuple[dict[str, torch.Tensor], dict]:
+    """The weights of the run or checkpoint folder ``cfg.init``, for ``model``, and their provenance
+    (what RUN/init.json records): ValueError when it is neither folder, of another task or
+    architecture, or its tensors do not fit ``model``."""
     source = read_run(cfg.init)
     for key in ("task", "arch"):
         if getattr(source.config, key) != getattr(cfg, key):
@@ -65,7 +66,8 @@ def initial_weights(cfg: TrainConfig, model: torch.nn.Module) -> dict[str, torch
             raise ValueError(f"--init {cfg.init} does not fit this network (its {key}: "
                              f"{tuple(theirs.shape) if theirs is not None else 'absent'}, here "
                              f"{tuple(ours[key].shape) if key in ours else 'absent'}; it was trained with {settings})")
-    return source.weights
+    return source.weights, {"path": cfg.init, "weights_sha256": source.meta.get("weights_sha256"),
+                            "steps": source.meta.get("steps")}
 
 
 INIT_SETTINGS = ("latent", "channels", "pred_hidden", "decoder_blocks", "encoder", "encoder_width", "image_size",
@@ -161,7 +163,10 @@ class Trainer:
     def _resume(self) -> None:
         if not self.ckpt_path.is_file():
             if self.cfg.init is not None:
-                self.model.load_state_dict(initial_weights(self.cfg, self.model))
+                weights, provenance = initial_weights(self.cfg, self.model)
+                self.model.load_state_dict(weights)
+                if self.rank == 0:
+                    (self.out / INIT_FILE).write_text(json_text(provenance))
             if self.rank == 0:
                 (self.out / "config.json").write_text(json.dumps(asdict(self.cfg), indent=1) + "\n")
             return

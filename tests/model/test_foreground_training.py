@@ -87,6 +87,9 @@ def test_a_network_trained_on_second_looks_looks_again_at_small_squares(tiny_dat
 
 
 def test_a_run_started_from_another_runs_weights(tiny_data, tmp_path, capsys):
+    """--init: a new run starts from another's weights (the same task and network), records where
+    they came from, and model.release carries that into model.json; a run that does not fit is refused."""
+    from model.release import RECIPES, package
     from model.train.__main__ import main
 
     Trainer(config(tiny_data, tmp_path / "a", iters=2, **FG)).run()
@@ -94,6 +97,11 @@ def test_a_run_started_from_another_runs_weights(tiny_data, tmp_path, capsys):
     tuned = Trainer(config(tiny_data, tmp_path / "b", iters=2, init=str(tmp_path / "a"), crop_share=0.5, **FG))
     assert tuned.step == 0 and all(torch.equal(tuned.model.state_dict()[k], v) for k, v in source.items())
     assert json.loads((tmp_path / "b" / "config.json").read_text())["init"] == str(tmp_path / "a")
+    assert json.loads((tmp_path / "b" / "init.json").read_text()) == {"path": str(tmp_path / "a"),
+                                                                      "weights_sha256": None, "steps": 2}
+    tuned.run()
+    meta = package(tmp_path / "b", tiny_data, tmp_path / "shipped", RECIPES["foreground"], ["foreground"], by_recipe=False)
+    assert meta["init"]["path"] == str(tmp_path / "a") and meta["config"]["crop_share"] == 0.5
     fresh = Trainer(config(tiny_data, tmp_path / "c", iters=2, **FG)).model.state_dict()
     assert any(not torch.equal(fresh[k], v) for k, v in source.items() if v.is_floating_point())
     args = ["foreground", "--data", str(tiny_data), "--depth", "5", "--out", str(tmp_path / "d"), "--quiet",
