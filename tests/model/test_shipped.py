@@ -208,3 +208,24 @@ def test_shipped_bundle_is_the_checkpoint_s_export_and_matches_it(name):
 def test_models_folder_fits_its_budget():
     total = sum(f.stat().st_size for f in CHECKPOINTS.parent.rglob("*") if f.is_file())
     assert total <= 60 * 1024 * 1024
+
+
+def test_shipped_provenance_names_no_machines_paths():
+    """model.json of every shipped checkpoint and bundle: commands and sources name paths relative
+    to the repository, never a folder of the machine they were made on."""
+    def strings(value):
+        if isinstance(value, dict):
+            for v in value.values():
+                yield from strings(v)
+        elif isinstance(value, list):
+            for v in value:
+                yield from strings(v)
+        elif isinstance(value, str):
+            yield value
+
+    files = sorted(CHECKPOINTS.parent.glob("*/*/model.json"))
+    assert len(files) == len(CHECKPOINTED) + len(SHIPPED)
+    for f in files:
+        absolute = [token for s in strings(json.loads(f.read_text())) for token in s.split()
+                    if token.startswith("/") and "/" in token[1:]]
+        assert not absolute, (f, absolute)
