@@ -214,8 +214,8 @@ class MaskSpec:
     encoder's images.  ``min_area``: the share of the image the object must cover to count as
     found; ``keep``: mask components smaller than this share of the largest are dropped;
     ``refine``: when the object's square (its box's longest side grown by ``refine_margin`` on each
-    side) covers less than this share of the image and has at least ``size`` pixels a side, the
-    network runs a second time on that square, so that a small object in a large photo is seen at
+    side) covers less than this share of the image and has at least ``refine_min`` pixels a side,
+    the network runs a second time on that square, so that a small object in a large photo is seen at
     the network's full resolution (0: never); ``refine_min``: the smallest square side looked at
     again (None: ``size``).  A network trained without second looks' views keeps the default: a
     smaller square, enlarged to ``size``, is blurred as none of its training photos is, and its

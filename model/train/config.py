@@ -81,6 +81,8 @@ class TrainConfig:
             raise ValueError(f"--limit must be at least 1, got {self.limit}")
         if self.epochs is not None and not self.epochs > 0:
             raise ValueError(f"--epochs must be positive, got {self.epochs}")
+        if self.init is not None and self.teacher is not None:
+            raise ValueError("--init and --teacher both give the starting weights; give one")
         if self.lr is not None and not self.lr > 0:
             raise ValueError(f"--lr must be positive, got {self.lr}")
         if not self.weight_decay >= 0:

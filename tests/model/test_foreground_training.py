@@ -86,7 +86,7 @@ def test_a_network_trained_on_second_looks_looks_again_at_small_squares(tiny_dat
         Trainer(config(tiny_data, tmp_path / "bad", crop_share=1.5, **FG))
 
 
-def test_a_run_started_from_another_runs_weights(tiny_data, tmp_path, capsys):
+def test_a_run_started_from_another_runs_weights(tiny_data, runs, tmp_path, capsys):
     """--init: a new run starts from another's weights (the same task and network), records where
     they came from, and model.release carries that into model.json; a run that does not fit is refused."""
     from model.release import RECIPES, package
@@ -106,6 +106,8 @@ def test_a_run_started_from_another_runs_weights(tiny_data, tmp_path, capsys):
     assert any(not torch.equal(fresh[k], v) for k, v in source.items() if v.is_floating_point())
     args = ["foreground", "--data", str(tiny_data), "--depth", "5", "--out", str(tmp_path / "d"), "--quiet",
             "--image-size", "32", "--iters", "1"]
+    with pytest.raises(ValueError, match="--init and --teacher"):
+        Trainer(config(tiny_data, tmp_path / "e", **{**IMAGE, "init": str(runs / "img"), "teacher": str(runs / "img")}))
     for init, needle in ((tmp_path / "a", "encoder_width=4"), (tmp_path / "none", "neither a run folder")):
         assert main(args + ["--init", str(init)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
