@@ -306,6 +306,15 @@ def object_square(box: tuple[int, int, int, int], height: int, width: int, margi
     return max(0, ty), min(height, ty + side), max(0, tx), min(width, tx + side)
 
 
+def refine_square(box: tuple[int, int, int, int], height: int, width: int,
+                  spec: MaskSpec) -> tuple[int, int, int, int] | None:
+    """The square a second look would segment, (y0, y1, x0, x1) (:func:`object_square` with
+    ``spec.refine_margin``), or None when it covers ``spec.refine`` of the image or more (a large
+    object: the first look saw it well enough)."""
+    y0, y1, x0, x1 = object_square(box, height, width, spec.refine_margin)
+    return None if (y1 - y0) * (x1 - x0) >= spec.refine * height * width else (y0, y1, x0, x1)
+
+
 def object_mask(rgb: np.ndarray, segment, spec: MaskSpec) -> np.ndarray:
     """(H, W) float32 object mask of an opaque image from ``segment`` (the foreground network: an
     (h, w, 3) uint8 image to its (h, w) object probability), specks removed (:func:`clean_mask`;
@@ -314,9 +323,10 @@ def object_mask(rgb: np.ndarray, segment, spec: MaskSpec) -> np.ndarray:
     elsewhere (unless it finds nothing: then the first stands)."""
     h, w = rgb.shape[:2]
     mask = clean_mask(np.asarray(segment(rgb), np.float32), spec)
-    y0, y1, x0, x1 = object_square(mask_bounds(mask > 0.5), h, w, spec.refine_margin)
-    if (y1 - y0) * (x1 - x0) >= spec.refine * h * w or min(y1 - y0, x1 - x0) < spec.refine_side:
+    square = refine_square(mask_bounds(mask > 0.5), h, w, spec)
+    if square is None or min(square[1] - square[0], square[3] - square[2]) < spec.refine_side:
         return mask
+    y0, y1, x0, x1 = square
     fine = np.zeros_like(mask)
     fine[y0:y1, x0:x1] = np.asarray(segment(np.ascontiguousarray(rgb[y0:y1, x0:x1])), np.float32)
     try:

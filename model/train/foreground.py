@@ -15,7 +15,7 @@ import numpy as np
 
 from ..data.photos import Photo, mask_box, photo_composite
 from ..data.shapes import stable_hash
-from ..preprocess import MaskSpec, mask_input, object_square, resize_mask
+from ..preprocess import MaskSpec, mask_input, refine_square, resize_mask
 from .data import Sample
 
 BOX_ERROR = 0.1
@@ -34,9 +34,10 @@ def second_look(photo: Photo, rng: np.random.Generator, spec: MaskSpec) -> Photo
     error = np.round(rng.uniform(-BOX_ERROR, BOX_ERROR, 4) * max(bottom - top, right - left)).astype(int)
     top, left = top + int(error[0]), left + int(error[1])
     bottom, right = max(top + 1, bottom + int(error[2])), max(left + 1, right + int(error[3]))
-    y0, y1, x0, x1 = object_square((top, left, bottom, right), h, w, spec.refine_margin)
-    if y1 - y0 < 2 or x1 - x0 < 2 or (y1 - y0) * (x1 - x0) >= spec.refine * h * w:
+    square = refine_square((top, left, bottom, right), h, w, spec)
+    if square is None or square[1] - square[0] < 2 or square[3] - square[2] < 2:
         return photo
+    y0, y1, x0, x1 = square
     mask = photo.mask[y0:y1, x0:x1]
     return Photo(np.ascontiguousarray(photo.rgb[y0:y1, x0:x1]), np.ascontiguousarray(mask), mask_box(mask))
 

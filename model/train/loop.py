@@ -49,30 +49,26 @@ def _quiet_worker() -> None:
     torch.set_num_threads(1)
 
 
-def initial_weights(cfg: TrainConfig, model: torch.nn.Module) -> tuple[dict[str, torch.Tensor], dict]:
-    """The weights of the run or checkpoint folder ``cfg.init``, for ``model``, and their provenance
-    (what RUN/init.json records): ValueError when it is neither folder, of another task or
-    architecture, or its tensors do not fit ``model``."""
+INIT_SETTINGS = ("latent", "channels", "pred_hidden", "decoder_blocks", "encoder", "encoder_width", "image_size",
+                 "categories")
+"""Settings that shape a network, named when ``--init``'s weights do not fit."""
+
+
+def load_initial_weights(cfg: TrainConfig, model: torch.nn.Module) -> dict:
+    """Load the weights of the run or checkpoint folder ``cfg.init`` into ``model``; returns their
+    provenance (what RUN/init.json records).  ValueError when it is neither folder, of another task
+    or architecture, or its tensors do not fit ``model``."""
     source = read_run(cfg.init)
     for key in ("task", "arch"):
         if getattr(source.config, key) != getattr(cfg, key):
             raise ValueError(f"--init {cfg.init} is a {key} {getattr(source.config, key)!r} run, not {getattr(cfg, key)!r}")
-    ours = model.state_dict()
-    for key in sorted(set(ours) | set(source.weights)):
-        theirs = source.weights.get(key)
-        if key not in ours or theirs is None or theirs.shape != ours[key].shape:
-            settings = ", ".join(f"{k}={getattr(source.config, k)!r}" for k in INIT_SETTINGS
-                                 if getattr(source.config, k) != getattr(cfg, k)) or "another network"
-            raise ValueError(f"--init {cfg.init} does not fit this network (its {key}: "
-                             f"{tuple(theirs.shape) if theirs is not None else 'absent'}, here "
-                             f"{tuple(ours[key].shape) if key in ours else 'absent'}; it was trained with {settings})")
-    return source.weights, {"path": cfg.init, "weights_sha256": source.meta.get("weights_sha256"),
-                            "steps": source.meta.get("steps")}
-
-
-INIT_SETTINGS = ("latent", "channels", "pred_hidden", "decoder_blocks", "encoder", "encoder_width", "image_size",
-                 "categories")
-"""Settings that shape a network, named when ``--init``'s weights do not fit."""
+    try:
+        model.load_state_dict(source.weights)
+    except RuntimeError:                     # missing, unexpected or differently shaped tensors
+        settings = ", ".join(f"{k}={getattr(source.config, k)!r}" for k in INIT_SETTINGS
+                             if getattr(source.config, k) != getattr(cfg, k)) or "another network"
+        raise ValueError(f"--init {cfg.init} does not fit this network: it was trained with {settings}") from None
+    return {"path": cfg.init, "weights_sha256": source.meta.get("weights_sha256"), "steps": source.meta.get("steps")}
 
 
 class Prefetcher:
@@ -162,12 +158,10 @@ class Trainer:
 
     def _resume(self) -> None:
         if not self.ckpt_path.is_file():
-            if self.cfg.init is not None:
-                weights, provenance = initial_weights(self.cfg, self.model)
-                self.model.load_state_dict(weights)
-                if self.rank == 0:
-                    (self.out / INIT_FILE).write_text(json_text(provenance))
+            provenance = load_initial_weights(self.cfg, self.model) if self.cfg.init is not None else None
             if self.rank == 0:
+                if provenance is not None:
+                    (self.out / INIT_FILE).write_text(json_text(provenance))
                 (self.out / "config.json").write_text(json.dumps(asdict(self.cfg), indent=1) + "\n")
             return
         state = load_checkpoint(self.ckpt_path)
