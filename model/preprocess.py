@@ -172,9 +172,7 @@ def prepare_image(rgba: np.ndarray, spec: ImageSpec, keep_background: bool = Fal
     if keep_background or part[..., 3].min() == 255:
         rgb = part[..., :3]                             # compositing would change nothing
     else:
-        a = part[..., 3:4].astype(np.float32) / 255.0
-        rgb = part[..., :3].astype(np.float32) * a + np.asarray(spec.background, np.float32) * (1 - a)
-        rgb = np.clip(rgb.round(), 0, 255).astype(np.uint8)
+        rgb = composite(part, spec.background)
     pads = ((ys - y0, y0 + full - ye), (xs - x0, x0 + full - xe), (0, 0))
     if opaque:
         # an opaque photo: the real surroundings, the image's edges extended beyond its border
@@ -188,6 +186,21 @@ def prepare_image(rgba: np.ndarray, spec: ImageSpec, keep_background: bool = Fal
     x = np.asarray(img, np.float32) / 255.0
     x = (x - np.asarray(spec.mean, np.float32)) / np.asarray(spec.std, np.float32)
     return np.ascontiguousarray(x.transpose(2, 0, 1))
+
+
+def composite(rgba: np.ndarray, background: tuple[int, int, int]) -> np.ndarray:
+    """(H, W, 3) uint8: an RGBA uint8 image over a colour, each channel ``round(c a + b (1 - a))``
+    with ``a = alpha / 255``, in exact integer arithmetic (a sum ``n`` of integers is never
+    halfway between two multiples of 255, so ``(n + 127) // 255`` is the rounded quotient)."""
+    a = rgba[..., 3:4].astype(np.uint16)
+    n = rgba[..., :3] * a + np.asarray(background, np.uint16) * (255 - a) + 127   # <= 255 * 255 + 127
+    return (n // 255).astype(np.uint8)
+
+
+def rgb_of(rgba: np.ndarray) -> np.ndarray:
+    """The (H, W, 3) uint8 colour channels of an RGBA image, as a contiguous array (what the
+    foreground network's resizing reads; Pillow drops the alpha faster than a strided copy)."""
+    return np.asarray(Image.fromarray(np.ascontiguousarray(rgba), "RGBA").convert("RGB"))
 
 
 def load_and_prepare(data: bytes | str | Path, spec: ImageSpec, max_pixels: int = MAX_PIXELS_DEFAULT) -> np.ndarray:
@@ -382,9 +395,10 @@ def frame_object(rgba: np.ndarray, spec: ImageSpec, segment=None, remove_backgro
                              "send an image with transparency around the object")
         box = object_box(rgba, spec.border_tolerance)
         return Framed(prepare_image(rgba, spec, foreground_ratio=foreground_ratio, box=box), "none", box, None)
-    rgb = rgba[..., :3]
-    mask = object_mask(rgb, segment, mask_spec)
+    mask = object_mask(rgb_of(rgba), segment, mask_spec)
     alpha = np.clip(np.round(mask * 255), 0, 255).astype(np.uint8)
     box = mask_bounds(alpha >= 128)
-    image = prepare_image(np.dstack([rgb, alpha]), spec, foreground_ratio=foreground_ratio, box=box)
+    cut = rgba.copy()
+    cut[..., 3] = alpha
+    image = prepare_image(cut, spec, foreground_ratio=foreground_ratio, box=box)
     return Framed(image, "network", box, alpha)

@@ -1,9 +1,9 @@
 """Photo-like composites of the dataset's renders: what a phone photo of the object looks like.
 
 A render (RGBA, exact alpha) is placed at a random scale, offset and aspect ratio on a background
-(a crop of a real photograph, or a procedural gradient, noise, texture or random shapes), under
-random lighting, with a soft shadow beneath the object, colour jitter of object and scene, blur,
-sensor noise and JPEG compression.  The result has no alpha; the exact object mask comes with it.
+(a crop of a real photograph, or a procedural gradient, noise, texture, random shapes, gravel, print
+or specks of light), under random lighting, with a soft shadow beneath the object, colour jitter of
+object and scene, blur, sensor noise and JPEG compression.  The result has no alpha; the exact object mask comes with it.
 
 Real photographs are scikit-image's sample images, split once: :data:`TRAIN_PHOTOS` for training,
 :data:`TEST_PHOTOS` only for the photo-like test split (none shows one of the dataset's
@@ -20,7 +20,7 @@ from pathlib import Path
 from dataclasses import dataclass
 
 import numpy as np
-from PIL import Image, ImageDraw, ImageFilter
+from PIL import Image, ImageDraw, ImageFilter, ImageFont
 from scipy import ndimage
 
 from ..preprocess import mask_bounds
@@ -32,6 +32,11 @@ TRAIN_PHOTOS = ("astronaut.png", "chelsea.png", "coffee.png", "motorcycle_left.p
 TEST_PHOTOS = ("rocket.jpg", "gravel.png", "hubble_deep_field.jpg", "text.png")
 """Sample photographs kept out of training: backgrounds of the photo-like test split only."""
 SPLITS = {"train": TRAIN_PHOTOS, "test": TEST_PHOTOS}
+SCENES = ("gradient", "noise", "pattern", "shapes", "pebbles", "print", "specks")
+"""The procedural scenes a background is drawn from, by name (the painters below)."""
+FIRST_SCENES = SCENES[:4]
+"""The procedural scenes of the first foreground networks' training and of the photo-like test
+split (kept as it was measured)."""
 
 
 @dataclass(frozen=True)
@@ -41,7 +46,7 @@ class PhotoStyle:
     ``scale``: the object's longest side as a share of the photo's short side; ``short_side``:
     the photo's short side in pixels; ``aspect``: long / short side; ``real``: the share of real
     photographs among backgrounds; ``cut``: the largest share of the object's box allowed to fall
-    outside the photo."""
+    outside the photo; ``scenes``: the procedural scenes drawn from (names of :data:`SCENES`)."""
 
     scale: tuple[float, float] = (0.15, 0.95)
     short_side: tuple[int, int] = (160, 320)
@@ -50,6 +55,7 @@ class PhotoStyle:
     shadow: float = 0.6
     jpeg: float = 0.7
     cut: float = 0.1
+    scenes: tuple[str, ...] = SCENES
 
 
 @dataclass
@@ -73,10 +79,10 @@ def real_photo(name: str) -> np.ndarray:
         return np.asarray(img.convert("RGB")).copy()
 
 
-def background(rng: np.random.Generator, h: int, w: int, split: str = "train", real: float = 0.5) -> np.ndarray:
-    """(h, w, 3) float32 in [0, 255]: a crop of a real photograph of ``split`` (share ``real``) or a
-    procedural scene: gradient, multi-scale noise, stripes or checks, or random shapes on a colour;
-    then a random lighting ramp."""
+def background(rng: np.random.Generator, h: int, w: int, split: str = "train", real: float = 0.5,
+               scenes: tuple[str, ...] = SCENES) -> np.ndarray:
+    """(h, w, 3) floats in [0, 255]: a crop of a real photograph of ``split`` (share ``real``) or a
+    procedural scene, one of ``scenes`` (names of :data:`SCENES`); then a random lighting ramp."""
     if rng.random() < real:
         names = SPLITS[split]
         src = real_photo(names[int(rng.integers(len(names)))])
@@ -90,41 +96,129 @@ def background(rng: np.random.Generator, h: int, w: int, split: str = "train", r
             img = img.filter(ImageFilter.GaussianBlur(rng.uniform(1, 6)))
         bg = np.asarray(img, np.float32)
     else:
-        kind = int(rng.integers(4))
+        kind = scenes[int(rng.integers(len(scenes)))]
         c0, c1 = rng.uniform(0, 255, 3), rng.uniform(0, 255, 3)
-        yy, xx = (g.astype(np.float32) for g in np.ogrid[0:h, 0:w])
-        if kind == 0:                                # a smooth gradient, any direction (a studio backdrop)
-            t = rng.uniform(0, 2 * np.pi)
-            ramp = (np.cos(t) * xx + np.sin(t) * yy)
-            ramp = (ramp - ramp.min()) / max(1e-6, float(np.ptp(ramp)))
-            bg = c0 * (1 - ramp[..., None]) + c1 * ramp[..., None]
-        elif kind == 1:                              # noise at several scales
-            bg = np.broadcast_to(c0, (h, w, 3)).astype(np.float32).copy()
-            for cell in (64, 16, 4):
-                coarse = rng.normal(0, rng.uniform(5, 40), (h // cell + 2, w // cell + 2, 3)).astype(np.float32)
-                bg += _resize3(coarse, h, w)
-        elif kind == 2:                              # stripes or checks (fabric, tiles, wood)
-            period = rng.uniform(4, 40)
-            t = rng.uniform(0, np.pi)
-            u = (np.cos(t) * xx + np.sin(t) * yy) / period
-            v = (-np.sin(t) * xx + np.cos(t) * yy) / period
-            pattern = np.sin(2 * np.pi * u) if rng.random() < 0.5 else np.sign(np.sin(np.pi * u) * np.sin(np.pi * v))
-            pattern = (pattern + 1) / 2
-            bg = c0 * (1 - pattern[..., None]) + c1 * pattern[..., None]
-        else:                                        # random shapes on a colour (a cluttered scene)
-            img = Image.new("RGB", (w, h), tuple(int(c) for c in c0))
-            draw = ImageDraw.Draw(img)
-            for _ in range(int(rng.integers(3, 15))):
-                x0, y0 = rng.uniform(-0.2, 1.0) * w, rng.uniform(-0.2, 1.0) * h
-                x1, y1 = x0 + rng.uniform(0.05, 0.6) * w, y0 + rng.uniform(0.05, 0.6) * h
-                fill = tuple(int(c) for c in rng.uniform(0, 255, 3))
-                (draw.ellipse if rng.random() < 0.5 else draw.rectangle)((x0, y0, x1, y1), fill=fill)
-            if rng.random() < 0.5:
-                img = img.filter(ImageFilter.GaussianBlur(rng.uniform(0.5, 4)))
-            bg = np.asarray(img, np.float32)
+        bg = _SCENE_PAINTERS[kind](rng, h, w, c0, c1)
     bg = np.asarray(bg, np.float32)
     light = _lighting(rng, h, w)
     return np.clip(bg * light[..., None], 0, 255)
+
+
+def _gradient(rng: np.random.Generator, h: int, w: int, c0: np.ndarray, c1: np.ndarray) -> np.ndarray:
+    """A smooth gradient in any direction: a studio backdrop."""
+    yy, xx = (g.astype(np.float32) for g in np.ogrid[0:h, 0:w])
+    t = rng.uniform(0, 2 * np.pi)
+    ramp = (np.cos(t) * xx + np.sin(t) * yy)
+    ramp = (ramp - ramp.min()) / max(1e-6, float(np.ptp(ramp)))
+    return c0 * (1 - ramp[..., None]) + c1 * ramp[..., None]
+
+
+def _noise(rng: np.random.Generator, h: int, w: int, c0: np.ndarray, c1: np.ndarray) -> np.ndarray:
+    """Noise at several scales about one colour."""
+    bg = np.broadcast_to(c0, (h, w, 3)).astype(np.float32).copy()
+    for cell in (64, 16, 4):
+        coarse = rng.normal(0, rng.uniform(5, 40), (h // cell + 2, w // cell + 2, 3)).astype(np.float32)
+        bg += _resize3(coarse, h, w)
+    return bg
+
+
+def _pattern(rng: np.random.Generator, h: int, w: int, c0: np.ndarray, c1: np.ndarray) -> np.ndarray:
+    """Stripes or checks: fabric, tiles, wood."""
+    yy, xx = (g.astype(np.float32) for g in np.ogrid[0:h, 0:w])
+    period = rng.uniform(4, 40)
+    t = rng.uniform(0, np.pi)
+    u = (np.cos(t) * xx + np.sin(t) * yy) / period
+    v = (-np.sin(t) * xx + np.cos(t) * yy) / period
+    pattern = np.sin(2 * np.pi * u) if rng.random() < 0.5 else np.sign(np.sin(np.pi * u) * np.sin(np.pi * v))
+    pattern = (pattern + 1) / 2
+    return c0 * (1 - pattern[..., None]) + c1 * pattern[..., None]
+
+
+def _shapes(rng: np.random.Generator, h: int, w: int, c0: np.ndarray, c1: np.ndarray) -> np.ndarray:
+    """Random rectangles and ellipses on a colour: a cluttered scene."""
+    img = Image.new("RGB", (w, h), tuple(int(c) for c in c0))
+    draw = ImageDraw.Draw(img)
+    for _ in range(int(rng.integers(3, 15))):
+        x0, y0 = rng.uniform(-0.2, 1.0) * w, rng.uniform(-0.2, 1.0) * h
+        x1, y1 = x0 + rng.uniform(0.05, 0.6) * w, y0 + rng.uniform(0.05, 0.6) * h
+        fill = tuple(int(c) for c in rng.uniform(0, 255, 3))
+        (draw.ellipse if rng.random() < 0.5 else draw.rectangle)((x0, y0, x1, y1), fill=fill)
+    if rng.random() < 0.5:
+        img = img.filter(ImageFilter.GaussianBlur(rng.uniform(0.5, 4)))
+    return np.asarray(img, np.float32)
+
+
+def _pebbles(rng: np.random.Generator, h: int, w: int, c0: np.ndarray, c1: np.ndarray) -> np.ndarray:
+    """Densely packed small stones of tones between two colours, dark gaps between them: gravel,
+    pebbles, a cobbled floor."""
+    img = Image.new("RGB", (w, h), tuple(int(c) for c in c0 * rng.uniform(0.2, 0.7)))
+    draw = ImageDraw.Draw(img)
+    r = rng.uniform(2, 14)                                      # the stones' mean radius, pixels
+    n = min(8000, int(h * w / (r * r * 2.2)))
+    centres = rng.uniform(0, 1, (n, 2)) * (w, h)
+    radii = r * rng.uniform(0.5, 1.5, (n, 2))
+    t = rng.uniform(0, 1, (n, 1))
+    tones = np.clip(c0 * (1 - t) + c1 * t + rng.normal(0, 25, (n, 1)), 0, 255).astype(int)
+    for (cx, cy), (rx, ry), tone in zip(centres, radii, tones):
+        draw.ellipse((cx - rx, cy - ry, cx + rx, cy + ry), fill=tuple(tone))
+    if rng.random() < 0.7:
+        img = img.filter(ImageFilter.GaussianBlur(rng.uniform(0.3, 1.5)))
+    bg = np.asarray(img, np.float32)
+    grey = bg.mean(axis=-1, keepdims=True)                      # stones are mostly dull, and grainy
+    bg = grey + (bg - grey) * np.float32(rng.uniform(0.1, 1.0))
+    return bg + rng.normal(0, rng.uniform(3, 20), (h, w, 1)).astype(np.float32)
+
+
+@functools.cache
+def _font(size: int) -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
+    return ImageFont.load_default(size)
+
+
+_GLYPHS = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789      .,;:-()"
+
+
+def _print(rng: np.random.Generator, h: int, w: int, c0: np.ndarray, c1: np.ndarray) -> np.ndarray:
+    """Lines of text and pen strokes on paper (or light on dark): a page, a sign, a whiteboard."""
+    paper = 255 - (255 - c0) * rng.uniform(0, 0.4)
+    ink = c1 * rng.uniform(0, 0.4)
+    if rng.random() < 0.25:
+        paper, ink = ink, paper
+    paper_t, ink_t = tuple(int(c) for c in paper), tuple(int(c) for c in ink)
+    img = Image.new("RGB", (w, h), paper_t)
+    draw = ImageDraw.Draw(img)
+    size = int(rng.integers(8, 49))
+    font = _font(size)
+    step = size * rng.uniform(1.1, 2.2)
+    y = rng.uniform(-size, step)
+    while y < h:
+        chars = rng.integers(len(_GLYPHS), size=int(rng.integers(5, 80)))
+        draw.text((rng.uniform(-0.1, 0.3) * w, y), "".join(_GLYPHS[c] for c in chars), fill=ink_t, font=font)
+        y += step
+    for _ in range(int(rng.integers(0, 6))):                     # handwriting, underlines, doodles
+        pts = np.cumsum(rng.normal(0, 0.15, (int(rng.integers(2, 10)), 2)), axis=0) + rng.uniform(0, 1, 2)
+        draw.line([(x * w, y * h) for x, y in pts], fill=ink_t, width=int(rng.integers(1, 7)))
+    if rng.random() < 0.5:
+        img = img.rotate(rng.uniform(-30, 30), resample=Image.Resampling.BILINEAR, fillcolor=paper_t)
+    return np.asarray(img, np.float32)
+
+
+def _specks(rng: np.random.Generator, h: int, w: int, c0: np.ndarray, c1: np.ndarray) -> np.ndarray:
+    """Bright points and soft smudges on a dark ground: a night sky, city lights, sparkle, dust."""
+    light = np.zeros((h, w), np.float32)
+    n = int(h * w * rng.uniform(0.0005, 0.01))
+    light[rng.integers(0, h, n), rng.integers(0, w, n)] = rng.pareto(1.5, n).astype(np.float32) + 0.3
+    light = ndimage.gaussian_filter(light, rng.uniform(0.4, 1.5)) * 4
+    for _ in range(int(rng.integers(0, 6))):                    # a few large faint glows
+        glow = np.zeros((h, w), np.float32)
+        glow[int(rng.integers(h)), int(rng.integers(w))] = 1
+        sigma = rng.uniform(3, 20)
+        light += ndimage.gaussian_filter(glow, sigma) * (2 * np.pi * sigma ** 2) * rng.uniform(0.1, 0.6)
+    tint = 0.5 + 0.5 * c1 / 255
+    return c0 * rng.uniform(0, 0.2) + np.clip(light, 0, 1.2)[..., None] * (255 * tint)
+
+
+_SCENE_PAINTERS = {"gradient": _gradient, "noise": _noise, "pattern": _pattern, "shapes": _shapes,
+                   "pebbles": _pebbles, "print": _print, "specks": _specks}
 
 
 def _resize3(a: np.ndarray, h: int, w: int) -> np.ndarray:
@@ -187,7 +281,7 @@ def photo_composite(rgba: np.ndarray, rng: np.random.Generator, split: str = "tr
         part = placed[ys - y0:ye - y0, xs - x0:xe - x0]
         alpha[ys:ye, xs:xe] = part[..., 3] / 255.0
         colour[ys:ye, xs:xe] = part[..., :3]
-    scene = background(rng, h, w, split, style.real)
+    scene = background(rng, h, w, split, style.real, style.scenes)
     if rng.random() < style.shadow:                             # a soft contact shadow under the object
         scene *= 1 - _shadow(alpha, rng)[..., None]
     scene = _jitter(scene, rng, 1.0)
@@ -233,7 +327,7 @@ def mask_box(mask: np.ndarray, level: float = 0.5) -> tuple[int, int, int, int] 
     return mask_bounds(mask > level)
 
 
-TEST_STYLE = PhotoStyle(scale=(0.3, 0.95))
+TEST_STYLE = PhotoStyle(scale=(0.3, 0.95), scenes=FIRST_SCENES)
 """The photo-like test split: objects as a user photographs them (their longest side 30-95% of the
 photo's short side; training also sees them down to 15%)."""
 

@@ -115,3 +115,34 @@ def test_generated_photos_show_training_shapes_of_every_category_on_training_sce
         assert p.rgb.ndim == 3 and p.rgb.shape[2] == 3 and p.box is not None and 0 < p.mask.mean() < 1
     again = photos.generated_photos(per_category=1, views=2, seed=3)
     assert all(np.array_equal(a.rgb, b.rgb) for a, b in zip(got, again))
+
+
+@pytest.mark.parametrize("scene", photos.SCENES)
+def test_every_procedural_scene_paints_a_textured_photo_of_the_asked_size(scene):
+    """Each scene fills (h, w, 3) within [0, 255], is not flat, and differs from seed to seed."""
+    h, w = 150, 230
+    a = photos.background(np.random.default_rng(1), h, w, real=0.0, scenes=(scene,))
+    b = photos.background(np.random.default_rng(2), h, w, real=0.0, scenes=(scene,))
+    assert a.shape == (h, w, 3) and np.issubdtype(a.dtype, np.floating)
+    assert a.min() >= 0 and a.max() <= 255
+    assert a.std() > 2 and np.abs(a - b).mean() > 2
+
+
+def test_pebbles_print_and_specks_have_the_texture_they_are_named_for():
+    rng = np.random.default_rng(0)
+    edges = {}
+    for scene in ("gradient", "pebbles"):
+        g = np.mean([photos._SCENE_PAINTERS[scene](np.random.default_rng(s), 200, 200, np.full(3, 90.0),
+                                                  np.full(3, 200.0)).mean(-1) for s in range(4)], axis=0)
+        edges[scene] = np.abs(np.diff(g, axis=1)).mean()
+    assert edges["pebbles"] > 5 * edges["gradient"]           # stones: edges everywhere, a gradient none
+    page = photos._print(rng, 200, 300, np.full(3, 250.0), np.full(3, 0.0)).mean(-1)
+    light = page > 128
+    assert 0.02 < (~light).mean() < 0.6 or 0.02 < light.mean() < 0.6   # thin strokes on a ground
+    sky = photos._specks(rng, 200, 300, np.full(3, 20.0), np.full(3, 255.0)).mean(-1)
+    assert np.median(sky) < 40 and sky.max() > 150            # bright points on a dark ground
+
+
+def test_the_test_split_is_drawn_from_the_scenes_it_was_measured_with():
+    assert photos.TEST_STYLE.scenes == photos.FIRST_SCENES == ("gradient", "noise", "pattern", "shapes")
+    assert set(photos.PhotoStyle().scenes) == set(photos.SCENES) == set(photos._SCENE_PAINTERS)

@@ -117,3 +117,27 @@ def test_not_an_image_truncated_and_bombs_are_clear_errors(tmp_path):
     ok = tmp_path / "ok.png"
     ok.write_bytes(data)
     assert load_and_prepare(ok, SPEC).shape == (3, 32, 32)
+
+
+def test_composite_is_the_rounded_blend_for_every_colour_alpha_and_background():
+    """The integer blend equals round(c a + b (1 - a)), a = alpha / 255, for all 256^3 triples."""
+    from model.preprocess import composite
+
+    c, a = np.meshgrid(np.arange(256), np.arange(256), indexing="ij")     # colour x alpha
+    rgba = np.dstack([c, c, c, a]).astype(np.uint8)
+    for b in range(256):
+        want = np.round(c * (a / 255.0) + b * (1 - a / 255.0))
+        got = composite(rgba, (b, b, b))
+        assert got.dtype == np.uint8 and got.shape == (256, 256, 3)
+        assert np.array_equal(got, np.repeat(want[..., None], 3, axis=2)), b
+    # per channel: each channel blends with its own background value
+    assert composite(np.array([[[10, 20, 30, 0]]], np.uint8), (1, 2, 3)).tolist() == [[[1, 2, 3]]]
+
+
+def test_rgb_of_drops_the_alpha_and_is_contiguous():
+    from model.preprocess import rgb_of
+
+    rgba = np.random.default_rng(0).integers(0, 256, (7, 5, 4), dtype=np.uint8)
+    rgb = rgb_of(rgba)
+    assert rgb.flags.c_contiguous and np.array_equal(rgb, rgba[..., :3])
+    assert np.array_equal(rgb_of(rgba[:, ::2]), rgba[:, ::2, :3])      # a strided view too
