@@ -11,7 +11,8 @@ ICP alignment (results evaluated with ``--icp``); ``--missing`` compares complet
 missing-part distance.  ``--surfaces`` compares, within each result, the closed surface with the
 patches, both sampled by area (``model.evaluate`` measures both surfaces for the image and
 completion tasks).  Completion results get a last row: the partial input itself.  Shapes a model decoded to nothing have no
-value and are left out of its pairs; the table counts them.
+value and are left out of its pairs; the table counts them.  Results of the foreground network
+(``model.evaluate`` on a foreground model) are compared by mask IoU, where higher is better.
 """
 
 from __future__ import annotations
@@ -29,8 +30,10 @@ from .cli import command_parser
 
 @dataclass
 class PairedDifference:
-    """Category-mean Chamfer of ``other`` minus ``base`` (x1e3), over the shapes both evaluated;
-    per shape, who is better (a lower value) or neither: ``base_wins + other_wins + ties == shapes``."""
+    """Category mean of a per-shape measure (a Chamfer distance x1e3 unless said otherwise) of
+    ``other`` minus ``base``, over the shapes both evaluated; per shape, who is better (a lower value,
+    or a higher one for a measure where higher is better) or neither:
+    ``base_wins + other_wins + ties == shapes``."""
 
     mean: float
     low: float
@@ -83,10 +86,11 @@ def markdown_table(results: list[dict], labels: list[str], metric: str = "chamfe
 
 
 def paired_difference(base: dict, other: dict, draws: int = 10_000, seed: int = 0,
-                      metric: str = "chamfer_x1e3", other_metric: str | None = None) -> PairedDifference:
+                      metric: str = "chamfer_x1e3", other_metric: str | None = None,
+                      higher_is_better: bool = False) -> PairedDifference:
     """Difference of category means (``other_metric`` of ``other`` minus ``metric`` of ``base``;
     by default the same metric) over the shapes both results hold a value for, with a
-    stratified bootstrap."""
+    stratified bootstrap; ``higher_is_better`` for a measure such as the mask IoU."""
     other_metric = other_metric or metric
     a = {(r["category"], r["shape_id"]): r.get(metric) for r in base["per_shape"] if _finite(r.get(metric))}
     b = {(r["category"], r["shape_id"]): r.get(other_metric) for r in other["per_shape"]
@@ -106,8 +110,24 @@ def paired_difference(base: dict, other: dict, draws: int = 10_000, seed: int = 
     boot /= len(diffs_by_cat)
     low, high = np.percentile(boot, [2.5, 97.5])
     all_d = np.concatenate(list(diffs_by_cat.values()))
-    return PairedDifference(mean, float(low), float(high), int((all_d > 0).sum()), int((all_d < 0).sum()),
-                            int((all_d == 0).sum()), len(common))
+    base_wins, other_wins = int((all_d > 0).sum()), int((all_d < 0).sum())
+    if higher_is_better:
+        base_wins, other_wins = other_wins, base_wins
+    return PairedDifference(mean, float(low), float(high), base_wins, other_wins, int((all_d == 0).sum()),
+                            len(common))
+
+
+def mask_table(results: list[dict], labels: list[str]) -> str:
+    """Foreground results: per-category mask IoU, the category mean, the median and the share of
+    photos above 0.9, one row per result."""
+    cats = sorted({row["category"] for r in results for row in r["per_shape"]})
+    lines = ["| run | " + " | ".join(cats) + " | **mean** | median | above 0.9 | photos |",
+             "|---|" + "---|" * (len(cats) + 4)]
+    for label, r in zip(labels, results):
+        cells = [f"{r['mask_iou'][c]:.3f}" if _finite(r["mask_iou"].get(c)) else "—" for c in cats]
+        lines.append(f"| {label} | " + " | ".join(cells) + f" | **{r['mask_iou_category_mean']:.3f}** | "
+                     f"{r['mask_iou_median']:.3f} | {r['mask_iou_above_0.9']:.0%} | {r['shapes']} |")
+    return "\n".join(lines)
 
 
 def surfaces_table(results: list[dict], labels: list[str], draws: int = 10_000) -> str:
@@ -155,15 +175,25 @@ def main(argv: list[str] | None = None) -> int:
         if args.surfaces:
             print(surfaces_table(results, labels, args.bootstrap))
             return 0
-        metric = "chamfer_icp_x1e3" if args.icp else "missing_x1e3" if args.missing else "chamfer_x1e3"
-        print(markdown_table(results, labels, metric))
-        if len(results) > 1:
+        masks = [r.get("task") == "foreground" for r in results]
+        if any(masks) and not all(masks):
+            raise ValueError("foreground results (mask IoU) can only be compared with foreground results")
+        if all(masks) and (args.icp or args.missing):
+            raise ValueError("--icp and --missing go with shape results, not the foreground network's masks")
+        if all(masks):
+            metric, what = "mask_iou", "mask IoU"
+            print(mask_table(results, labels))
+        else:
+            metric = "chamfer_icp_x1e3" if args.icp else "missing_x1e3" if args.missing else "chamfer_x1e3"
             what = ("Chamfer x1e3 after ICP" if args.icp else "missing part's distance x1e3" if args.missing
                     else "Chamfer x1e3")
+            print(markdown_table(results, labels, metric))
+        if len(results) > 1:
             print(f"\nPaired against {labels[0]} (other − base, {what} category mean, 95% bootstrap):")
             print("| run | difference | 95% interval | base better / other better / tie | shapes |\n|---|---|---|---|---|")
             for label, r in zip(labels[1:], results[1:]):
-                d = paired_difference(results[0], r, args.bootstrap, metric=metric)
+                d = paired_difference(results[0], r, args.bootstrap, metric=metric,
+                                      higher_is_better=all(masks))
                 print(f"| {label} | {d.mean:+.3f} | [{d.low:+.3f}, {d.high:+.3f}] | "
                       f"{d.base_wins} / {d.other_wins} / {d.ties} | {d.shapes} |")
     except ValueError as exc:

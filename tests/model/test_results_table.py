@@ -92,3 +92,34 @@ def test_surfaces_compares_the_closed_mesh_with_the_patches_inside_each_result(t
     assert main([str(pa), "--surfaces"]) == 2
     assert "no closed-surface figures" in capsys.readouterr().err
     assert main([str(pa), "--surfaces", "--icp"]) == 2
+
+
+def mask_results(values: dict[str, list[float]]) -> dict:
+    """A foreground evaluation's JSON: per-shape mask IoU and its summaries."""
+    rows = [{"category": c, "shape_id": f"{c}_{i}", "mask_iou": v}
+            for c, vs in values.items() for i, v in enumerate(vs)]
+    every = np.array([r["mask_iou"] for r in rows])
+    means = {c: float(np.mean(v)) for c, v in values.items()}
+    return {"task": "foreground", "per_shape": rows, "shapes": len(rows), "mask_iou": means,
+            "mask_iou_category_mean": float(np.mean(list(means.values()))),
+            "mask_iou_median": float(np.median(every)), "mask_iou_above_0.9": float((every > 0.9).mean())}
+
+
+def test_foreground_results_are_compared_by_mask_iou_where_higher_wins(tmp_path, capsys):
+    base = mask_results({"chair": [0.5, 0.95, 0.8], "lamp": [0.2]})
+    other = mask_results({"chair": [0.7, 0.91, 0.8], "lamp": [0.6]})      # better, worse, equal; better
+    d = paired_difference(base, other, draws=200, metric="mask_iou", higher_is_better=True)
+    assert d.mean == pytest.approx(((0.2 - 0.04) / 3 + 0.4) / 2)
+    assert (d.base_wins, d.other_wins, d.ties, d.shapes) == (1, 2, 1, 4)
+    pa, pb, pc = tmp_path / "a.json", tmp_path / "b.json", tmp_path / "c.json"
+    pa.write_text(json.dumps(base))
+    pb.write_text(json.dumps(other))
+    assert main([str(pa), str(pb), "--bootstrap", "200"]) == 0
+    out = capsys.readouterr().out
+    assert "| a | 0.750 | 0.200 | **0.475** | 0.650 | 25% | 4 |" in out
+    assert "mask IoU category mean" in out and "| b | +0.227 |" in out and "| 1 / 2 / 1 | 4 |" in out
+    assert main([str(pa), str(pb), "--icp"]) == 2
+    assert "not the foreground network's masks" in capsys.readouterr().err
+    pc.write_text(json.dumps(results({"chair": [1.0]})))
+    assert main([str(pa), str(pc)]) == 2
+    assert "only be compared with foreground results" in capsys.readouterr().err
