@@ -7,6 +7,9 @@ decoder, the patch mesh and its GLB): with ``remove_background=auto`` (the bundl
 network) against ``false`` (no mask: the path before the network existed), the same photos, the
 same bundle, in the same run; medians over ``--repeats`` passes after a warm-up, and their ratio.
 
+Phone photos (``--phone N``): N test views made 4000 x 3000 JPEGs, through the same path with
+``remove_background=auto``, worked on at the working size against at full size, in the same run.
+
 Real meshes (``--meshes``: a folder holding the research meshes named below; skipped when absent):
 each rendered from ``--views`` viewpoints, composited as a photo on the held-out backgrounds,
 reconstructed through the same path, and the output classified by the classification bundle
@@ -14,7 +17,7 @@ reconstructed through the same path, and the output classified by the classifica
 its category when the classifier, which never saw the photo, names that category.
 
     python -m bench.photos --bundle models/bundles/image-to-shape --data data/procedural
-        [--meshes ../shared/meshes] [--classifier models/bundles/classify] [--figure photos.png]
+        [--meshes ../shared/meshes] [--classifier models/bundles/classify] [--figure photos.png] [--phone 8]
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ import trimesh
 from PIL import Image
 
 from model.cli import command_parser
-from model.preprocess import mask_iou
+from model.preprocess import WORK_SIDE_DEFAULT, mask_iou
 
 REAL_MESHES = {
     # file: (category, up axis of the file): ModelNet40 is z-up, ShapeNet y-up
@@ -50,17 +53,19 @@ class Reconstruction:
     seconds: dict
 
 
-def reconstruct(data: bytes, runtime, remove_background: str = "auto") -> Reconstruction:
-    """The image endpoint's work on an uploaded photo (bytes), stage by stage, timed."""
+def reconstruct(data: bytes, runtime, remove_background: str = "auto",
+                work_side: int | None = WORK_SIDE_DEFAULT) -> Reconstruction:
+    """The image endpoint's work on an uploaded photo (bytes), stage by stage, timed; ``work_side``
+    as :func:`model.preprocess.decode_photo` (None: the photo at full size, as before it existed)."""
     from model.decode import DECODED_NORMALIZATION
-    from model.preprocess import MaskSpec, decode_image
+    from model.preprocess import MaskSpec, decode_photo
     from model.train.images import frame_or_whole
     from model.surface import surface_mesh
     from service.meshes import encode
 
     spec, t = runtime.bundle.image_spec(), {}
     t0 = time.perf_counter()
-    rgba = decode_image(data)
+    rgba = decode_photo(data, work_side=work_side).rgba
     t1 = time.perf_counter()
     segment = runtime.segment if runtime.has_foreground else None
     framed = frame_or_whole(rgba, spec, segment, remove_background, runtime.bundle.mask_spec() or MaskSpec())
@@ -112,6 +117,59 @@ def timing(runtime, photos: list[bytes], repeats: int) -> dict:
                 for k, v in r.seconds.items():
                     stages.setdefault(k, []).append(v)
         out[mode] = {"total": float(np.median(totals)), **{k: float(np.median(v)) for k, v in stages.items()}}
+    return out
+
+
+PHONE_SHORT_SIDE = 3000
+"""The short side of a 12-megapixel phone photo (4000 x 3000)."""
+
+
+def phone_photos(data: str, shapes: int) -> list[tuple[bytes, np.ndarray]]:
+    """The first ``shapes`` test shapes' photo-like views made as a phone takes them: 4000 x 3000
+    JPEG (quality 90), the object 30-95% of the short side, on the held-out backgrounds; with the
+    exact mask (bool)."""
+    import dataclasses
+
+    from model.data.dataset import load_record
+    from model.data.photos import TEST_STYLE, photo_composite
+    from model.data.shapes import stable_hash
+    from model.train.data import manifest_rows
+
+    style = dataclasses.replace(TEST_STYLE, short_side=(PHONE_SHORT_SIDE, PHONE_SHORT_SIDE), aspect=(4 / 3, 4 / 3))
+    _, rows = manifest_rows(Path(data), "test")
+    rows = sorted(rows, key=lambda r: (rows.index(r) % 10, r["category"]))[:shapes]
+    out = []
+    for r in rows:
+        rng = np.random.default_rng(stable_hash("phone-photo", r["shape_id"]))
+        images = load_record(Path(data) / r["path"])["images"]
+        photo = photo_composite(images[int(rng.integers(len(images)))], rng, "test", style)
+        out.append((jpeg(photo.rgb), photo.mask > 0.5))
+    return out
+
+
+def phone_timing(runtime, photos: list[tuple[bytes, np.ndarray]], repeats: int) -> dict:
+    """Median seconds per request of phone photos with background removal, and the mean mask IoU
+    at the photo's size: worked on at the working size (:data:`model.preprocess.WORK_SIDE_DEFAULT`)
+    against at full size (the path before the working size existed)."""
+    import dataclasses
+
+    from model.preprocess import upload_mask
+
+    out = {}
+    for name, side in (("full size", None), ("working size", WORK_SIDE_DEFAULT)):
+        totals, stages, ious = [], {}, []
+        reconstruct(photos[0][0], runtime, "auto", side)                    # warm-up
+        for i in range(repeats):
+            for data, truth in photos:
+                r = reconstruct(data, runtime, "auto", side)
+                totals.append(sum(r.seconds.values()))
+                for k, v in r.seconds.items():
+                    stages.setdefault(k, []).append(v)
+                if i == 0:
+                    mask = upload_mask(dataclasses.replace(r.framed, size=truth.shape))
+                    ious.append(mask_iou(mask > 127, truth) if mask is not None else 0.0)
+        out[name] = {"total": float(np.median(totals)), **{k: float(np.median(v)) for k, v in stages.items()},
+                     "mask_iou": float(np.mean(ious))}
     return out
 
 
@@ -198,6 +256,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--views", type=int, default=3, help="photos per real mesh (default 3)")
     ap.add_argument("--classifier", default="models/bundles/classify", help="the classification bundle")
     ap.add_argument("--figure", default=None, help="write photo | mask | crop | output rows to this PNG")
+    ap.add_argument("--phone", type=int, default=0,
+                    help="also time this many test views as 12-megapixel phone photos, at the working size "
+                         "against at full size (default 0: not timed)")
     args = ap.parse_args(argv)
     from export.bundle import BundleError, load_bundle
     from export.runtime import Runtime
@@ -218,6 +279,17 @@ def main(argv: list[str] | None = None) -> int:
     for k in t["auto"]:
         print(f"| {k} | {1e3 * t['false'][k]:.1f} | {1e3 * t['auto'][k]:.1f} |")
     print(f"ratio auto / false: {t['auto']['total'] / t['false']['total']:.2f}x")
+    if args.phone:
+        p = phone_timing(runtime, phone_photos(args.data, args.phone), args.repeats)
+        print(f"\n{args.phone} test views as 4000 x 3000 JPEG phone photos, remove_background=auto, "
+              f"{args.repeats} passes; median ms per request")
+        print("| stage | full size | working size |\n|---|---|---|")
+        for k in p["working size"]:
+            if k != "mask_iou":
+                print(f"| {k} | {1e3 * p['full size'][k]:.1f} | {1e3 * p['working size'][k]:.1f} |")
+        print(f"ratio full / working size: {p['full size']['total'] / p['working size']['total']:.2f}x; "
+              f"mask IoU at the photo's size: {p['full size']['mask_iou']:.3f} full, "
+              f"{p['working size']['mask_iou']:.3f} working size")
     shown = [(c, rgb, reconstruct(jpeg(rgb), runtime).framed, None) for c, _, rgb, _ in photos[:4]]
     if args.meshes and Path(args.meshes).is_dir():
         classifier = Runtime(load_bundle(args.classifier), threads=args.threads)

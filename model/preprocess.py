@@ -19,6 +19,11 @@ from PIL import Image, ImageOps, UnidentifiedImageError
 
 MAX_PIXELS_DEFAULT = 40_000_000
 """Images with more pixels than this are refused before decoding (decompression bombs)."""
+WORK_SIDE_DEFAULT = 1024
+"""A photo's shorter side, in pixels, beyond which the service reduces it as it decodes it
+(:func:`decode_photo`).  Every network input is far smaller (the foreground network's 128², the
+encoder's crop), and an object filling a tenth of the short side is still a 100-pixel square for
+the foreground network's second look; a 12-megapixel phone photo is worked on at 1024 x 1365."""
 
 
 class ImageError(ValueError):
@@ -56,10 +61,32 @@ class ImageSpec:
 
 
 def decode_image(data: bytes | str | Path, max_pixels: int = MAX_PIXELS_DEFAULT) -> np.ndarray:
-    """RGBA uint8 (H, W, 4) of an encoded image (bytes or a path); ImageError if it is not one.
+    """RGBA uint8 (H, W, 4) of an encoded image (bytes or a path) at its full size; ImageError if it
+    is not one (:func:`decode_photo` without a working size)."""
+    return decode_photo(data, max_pixels, None).rgba
 
-    The pixel count is checked from the header before the pixels are decoded.  EXIF orientation
-    is applied; animations give their first frame; 16-bit and float images are scaled to 8 bits.
+
+@dataclass(frozen=True)
+class Decoded:
+    """An image as decoded to be worked on: ``rgba`` (h, w, 4) uint8, ``size`` the (height, width)
+    of the image as uploaded (EXIF orientation applied).  Invariant: ``rgba`` is ``size`` or a
+    reduction of it with the same aspect ratio (within a pixel)."""
+
+    rgba: np.ndarray
+    size: tuple[int, int]
+
+
+def decode_photo(data: bytes | str | Path, max_pixels: int = MAX_PIXELS_DEFAULT,
+                 work_side: int | None = WORK_SIDE_DEFAULT) -> Decoded:
+    """An encoded image (bytes or a path) decoded to RGBA uint8 with its shorter side reduced to
+    ``work_side`` pixels when it is longer (None: full size); ImageError if it is not an image.
+
+    The pixel count is checked from the header before the pixels are decoded.  A JPEG is decoded
+    at the smallest of its scales 1/2, 1/4, 1/8 that is still at least the working size (the
+    decoder's own scaling: a fraction of the work of a full decode); then every format is reduced
+    with a box filter on premultiplied alpha, so transparent pixels' colours do not bleed.  EXIF
+    orientation is applied; animations give their first frame; 16-bit and float images are scaled
+    to 8 bits.
     """
     try:
         fh = io.BytesIO(data) if isinstance(data, (bytes, bytearray, memoryview)) else open(data, "rb")
@@ -76,15 +103,45 @@ def decode_image(data: bytes | str | Path, max_pixels: int = MAX_PIXELS_DEFAULT)
                 raise ImageError(f"the image has {w}x{h} = {w * h:,} pixels, more than the limit of "
                                  f"{max_pixels:,}; send a smaller image")
             img.seek(0)
+            size = (w, h) if img.getexif().get(_EXIF_ORIENTATION, 1) in (5, 6, 7, 8) else (h, w)
+            if work_side is not None and min(w, h) > work_side and img.format == "JPEG":
+                f = work_side / min(w, h)
+                img.draft(img.mode, (int(np.ceil(w * f)), int(np.ceil(h * f))))
             img.load()
             img = ImageOps.exif_transpose(img)
-            return _to_rgba(img)
+            if work_side is not None and min(img.size) > work_side and img.mode in ("RGB", "L"):
+                img = img.resize(_work_size(img.size, work_side), Image.Resampling.BOX)   # cheaper before RGBA
+            rgba = _to_rgba(img)
+            if work_side is not None and min(rgba.shape[:2]) > work_side:                 # the other modes
+                rgba = _reduce(rgba, work_side)
+            return Decoded(rgba, size)
         except ImageError:
             raise
         except (UnidentifiedImageError, Image.DecompressionBombError, Image.DecompressionBombWarning):
             raise ImageError("the data is not an image Pillow can read (PNG, JPEG, WebP, GIF, BMP, TIFF, ...)") from None
         except (OSError, SyntaxError, ValueError, EOFError, IndexError, KeyError, struct.error) as exc:
             raise ImageError(f"the image is truncated or corrupt ({type(exc).__name__}); send the whole file") from None
+
+
+_EXIF_ORIENTATION = 0x0112
+"""The EXIF tag of the orientation; values 5-8 turn the image a quarter (its sides swap)."""
+
+
+def _work_size(size: tuple[int, int], short_side: int) -> tuple[int, int]:
+    """(width, height) of an image of ``size`` (width, height) scaled to ``short_side`` on its
+    shorter side."""
+    f = short_side / min(size)
+    return max(1, round(size[0] * f)), max(1, round(size[1] * f))
+
+
+def _reduce(rgba: np.ndarray, short_side: int) -> np.ndarray:
+    """``rgba`` resized with a box filter so that its shorter side is ``short_side`` (alpha
+    premultiplied while resizing when the image has transparency)."""
+    size = _work_size((rgba.shape[1], rgba.shape[0]), short_side)
+    img = Image.fromarray(np.ascontiguousarray(rgba), "RGBA")
+    if rgba[..., 3].min() == 255:
+        return np.asarray(img.resize(size, Image.Resampling.BOX))
+    return np.asarray(img.convert("RGBa").resize(size, Image.Resampling.BOX).convert("RGBA"))
 
 
 def _to_rgba(img: Image.Image) -> np.ndarray:
@@ -286,12 +343,14 @@ def mask_output(logits: np.ndarray, height: int, width: int) -> np.ndarray:
     return np.clip(resize_mask(p, height, width), 0.0, 1.0)
 
 
-def clean_mask(mask: np.ndarray, spec: MaskSpec) -> np.ndarray:
-    """The mask without its specks: components (of pixels above 0.5) smaller than ``spec.keep`` of
-    the largest are cleared, with the soft edge around them; NoObjectError when what is left covers
-    less than ``spec.min_area`` of the image."""
+def clean_mask(mask: np.ndarray, spec: MaskSpec, area: int | None = None) -> np.ndarray:
+    """The mask without its specks: when components (of pixels above 0.5) smaller than ``spec.keep``
+    of the largest exist, everything further than 2 pixels from the components kept is cleared;
+    NoObjectError when what is left covers less than ``spec.min_area`` of the image (``area``
+    pixels: by default the mask's own)."""
     from scipy import ndimage
 
+    area = mask.size if area is None else area
     hard = mask > 0.5
     labels, n = ndimage.label(hard)
     if n == 0:
@@ -299,14 +358,24 @@ def clean_mask(mask: np.ndarray, spec: MaskSpec) -> np.ndarray:
                             "background")
     sizes = np.bincount(labels.ravel(), minlength=n + 1)[1:]
     keep = np.flatnonzero(sizes >= spec.keep * sizes.max()) + 1
-    if int(sizes[keep - 1].sum()) < spec.min_area * mask.size:
+    if int(sizes[keep - 1].sum()) < spec.min_area * area:
         raise NoObjectError(f"no object found in the image: the largest region that looks like one covers "
-                            f"{sizes.max() / mask.size:.2%} of it (at least {spec.min_area:.1%} is needed); "
+                            f"{sizes.max() / area:.2%} of it (at least {spec.min_area:.1%} is needed); "
                             "send a photo where the object fills more of the frame")
     if len(keep) == n:
         return mask
-    kept = ndimage.binary_dilation(np.isin(labels, keep), iterations=2)
-    return np.where(kept, mask, 0.0).astype(np.float32)
+    # the kept components' box grown by the 2-pixel reach: nothing outside it survives
+    boxes = ndimage.find_objects(labels)
+    y0 = max(0, min(boxes[k - 1][0].start for k in keep) - 2)
+    y1 = max(boxes[k - 1][0].stop for k in keep) + 2
+    x0 = max(0, min(boxes[k - 1][1].start for k in keep) - 2)
+    x1 = max(boxes[k - 1][1].stop for k in keep) + 2
+    kept_label = np.zeros(n + 1, bool)
+    kept_label[keep] = True
+    near = ndimage.binary_dilation(kept_label[labels[y0:y1, x0:x1]], iterations=2)
+    out = np.zeros(mask.shape, np.float32)
+    out[y0:y1, x0:x1] = np.where(near, mask[y0:y1, x0:x1], 0.0)
+    return out
 
 
 def object_square(box: tuple[int, int, int, int], height: int, width: int, margin: float) -> tuple[int, int, int, int]:
@@ -340,12 +409,13 @@ def object_mask(rgb: np.ndarray, segment, spec: MaskSpec) -> np.ndarray:
     if square is None or min(square[1] - square[0], square[3] - square[2]) < spec.refine_side:
         return mask
     y0, y1, x0, x1 = square
-    fine = np.zeros_like(mask)
-    fine[y0:y1, x0:x1] = np.asarray(segment(np.ascontiguousarray(rgb[y0:y1, x0:x1])), np.float32)
     try:
-        return clean_mask(fine, spec)
+        part = clean_mask(np.asarray(segment(np.ascontiguousarray(rgb[y0:y1, x0:x1])), np.float32), spec, h * w)
     except NoObjectError:                # the closer look lost the object: keep the first look's mask
         return mask
+    fine = np.zeros_like(mask)
+    fine[y0:y1, x0:x1] = part
+    return fine
 
 
 def mask_iou(ours: np.ndarray, truth: np.ndarray) -> float:
@@ -358,12 +428,38 @@ class Framed:
     """The encoder's input and what was done to get it: ``image`` (3, S, S); ``mask_source``
     "alpha" (the image's transparency), "network" (the foreground network) or "none"; ``box``
     (top, left, bottom, right), exclusive, the object's crop box in the image's pixels, None when
-    the whole image was used; ``mask`` (H, W) uint8, the mask applied (None for "none")."""
+    the whole image was used; ``mask`` (H, W) uint8, the mask applied (None for "none"); ``shape``
+    (H, W) of the image framed.  ``size``: the (height, width) of the image as uploaded when the
+    image framed was a reduction of it (:func:`decode_photo`; None: the image framed is the
+    upload); :func:`upload_box` and :func:`upload_mask` give them in the upload's pixels."""
 
     image: np.ndarray
     mask_source: str
     box: tuple[int, int, int, int] | None
     mask: np.ndarray | None
+    shape: tuple[int, int]
+    size: tuple[int, int] | None = None
+
+
+def upload_box(framed: Framed) -> tuple[int, int, int, int] | None:
+    """The crop box of ``framed`` in the pixels of the image as uploaded (``framed.size``), grown
+    outward to whole pixels; ``framed.box`` when the image framed was the upload."""
+    if framed.box is None or framed.size is None or tuple(framed.size) == tuple(framed.shape):
+        return framed.box
+    (h, w), (H, W) = framed.shape, framed.size
+    top, left, bottom, right = framed.box
+    return (int(np.floor(top * H / h)), int(np.floor(left * W / w)),
+            min(H, int(np.ceil(bottom * H / h))), min(W, int(np.ceil(right * W / w))))
+
+
+def upload_mask(framed: Framed) -> np.ndarray | None:
+    """The mask of ``framed`` at the size of the image as uploaded (``framed.size``), resized
+    bilinearly; ``framed.mask`` when the image framed was the upload."""
+    if framed.mask is None or framed.size is None or tuple(framed.size) == tuple(framed.shape):
+        return framed.mask
+    h, w = framed.size
+    return np.asarray(Image.fromarray(np.ascontiguousarray(framed.mask, np.uint8), "L")
+                      .resize((w, h), Image.Resampling.BILINEAR))
 
 
 def frame_object(rgba: np.ndarray, spec: ImageSpec, segment=None, remove_background: str = "auto",
@@ -388,17 +484,18 @@ def frame_object(rgba: np.ndarray, spec: ImageSpec, segment=None, remove_backgro
             raise NoObjectError("the image is fully transparent: there is no object to reconstruct")
         box = object_box(rgba, spec.border_tolerance)
         return Framed(prepare_image(rgba, spec, foreground_ratio=foreground_ratio, box=box), "alpha", box,
-                      rgba[..., 3].copy())
+                      rgba[..., 3].copy(), rgba.shape[:2])
     if remove_background == "false" or segment is None:
         if remove_background == "true":
             raise ImageError("remove_background=true needs a foreground network, and this model has none; "
                              "send an image with transparency around the object")
         box = object_box(rgba, spec.border_tolerance)
-        return Framed(prepare_image(rgba, spec, foreground_ratio=foreground_ratio, box=box), "none", box, None)
+        return Framed(prepare_image(rgba, spec, foreground_ratio=foreground_ratio, box=box), "none", box, None,
+                      rgba.shape[:2])
     mask = object_mask(rgb_of(rgba), segment, mask_spec)
     alpha = np.clip(np.round(mask * 255), 0, 255).astype(np.uint8)
     box = mask_bounds(alpha >= 128)
     cut = rgba.copy()
     cut[..., 3] = alpha
     image = prepare_image(cut, spec, foreground_ratio=foreground_ratio, box=box)
-    return Framed(image, "network", box, alpha)
+    return Framed(image, "network", box, alpha, rgba.shape[:2])

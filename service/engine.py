@@ -15,7 +15,7 @@ from PIL import Image
 from export.bundle import Bundle, BundleError, load_bundle
 from export.runtime import Runtime
 from model.decode import DECODED_NORMALIZATION
-from model.preprocess import Framed, MaskSpec
+from model.preprocess import Framed, MaskSpec, upload_mask
 from model.surface import DEFAULT_SURFACE, SURFACES, surface_mesh
 from model.octree import Octree, PointCloud, build_octree, scan_octree
 from model.octree.geometry import up_rotations
@@ -165,7 +165,7 @@ class Engine:
             raise APIError(422, "no_mask", "there is no mask: the image is opaque and this model has no foreground "
                            "network to find the object", "send a PNG with transparency around the object")
         buf = io.BytesIO()
-        Image.fromarray(np.ascontiguousarray(framed.mask, np.uint8)).save(buf, format="PNG")
+        Image.fromarray(upload_mask(framed)).save(buf, format="PNG")
         return buf.getvalue()
 
     def image_batch(self, items: list[Request]) -> list[MeshFile | APIError]:

@@ -7,6 +7,7 @@ temporary files are removed whatever happens.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import re
 import tempfile
@@ -16,7 +17,7 @@ from pathlib import Path
 from model.formats import IMAGE_FORMATS, MESH_FORMATS, POINT_FORMATS, identify, not_taken
 from model.octree import OctreeInputError
 from model.octree.inputs import HEADER_BYTES, LoadedInput, load_input, ply_vertex_count
-from model.preprocess import Framed, ImageError, ImageSpec, MaskSpec, NoObjectError, decode_image, frame_object
+from model.preprocess import Framed, ImageError, ImageSpec, MaskSpec, NoObjectError, decode_photo, frame_object
 
 from .errors import APIError
 
@@ -27,14 +28,17 @@ IMAGES_TAKEN = f"this endpoint takes an image ({IMAGE_FORMATS})"
 
 def image_input(data: bytes, spec: ImageSpec, max_pixels: int, segment=None, remove_background: str = "auto",
                 foreground_ratio: float | None = None, mask_spec: MaskSpec = MaskSpec()) -> Framed:
-    """An uploaded image decoded and framed for the encoder (:func:`model.preprocess.frame_object`:
-    ``segment`` is the foreground network, None without one), or a 4xx (415 naming what else it is,
-    422 when it shows no object or asks for a background removal the model cannot do)."""
+    """An uploaded image decoded (a large photo reduced as it is decoded:
+    :func:`model.preprocess.decode_photo`) and framed for the encoder
+    (:func:`model.preprocess.frame_object`: ``segment`` is the foreground network, None without
+    one; the upload's size kept on the result), or a 4xx (415 naming what else it is, 422 when it
+    shows no object or asks for a background removal the model cannot do)."""
     if not data:
         raise APIError(400, "empty_input", "the 'image' field is empty", "upload the image file's bytes")
     try:
-        return frame_object(decode_image(data, max_pixels), spec, segment, remove_background, foreground_ratio,
-                            mask_spec)
+        decoded = decode_photo(data, max_pixels)
+        framed = frame_object(decoded.rgba, spec, segment, remove_background, foreground_ratio, mask_spec)
+        return dataclasses.replace(framed, size=decoded.size)
     except NoObjectError as exc:
         raise APIError(422, "no_object", str(exc), "send a photo where one object stands out from its "
                        "background, or a PNG with transparency around the object") from None

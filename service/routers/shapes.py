@@ -8,7 +8,7 @@ from fastapi import APIRouter, Depends, File, Header, Query, UploadFile
 from fastapi.responses import Response
 
 from model.octree.build import MAX_BUILD_DEPTH
-from model.preprocess import Framed
+from model.preprocess import Framed, upload_box
 from model.surface import DEFAULT_SURFACE
 
 from ..deps import engine, require_key
@@ -75,8 +75,9 @@ def mesh_response(mesh: MeshFile, name: str, timer: StageTimer, model: str = "",
 def framing_headers(framed: Framed, ratio: float) -> dict[str, str]:
     """X-Mask, X-Crop-Box (when there is a box) and X-Foreground-Ratio of a photo's framing."""
     headers = {"X-Mask": framed.mask_source, "X-Foreground-Ratio": f"{ratio:.3f}"}
-    if framed.box is not None:
-        headers["X-Crop-Box"] = ",".join(str(v) for v in framed.box)
+    box = upload_box(framed)
+    if box is not None:
+        headers["X-Crop-Box"] = ",".join(str(v) for v in box)
     return headers
 
 

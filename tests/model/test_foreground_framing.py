@@ -186,3 +186,35 @@ def test_when_the_second_look_finds_nothing_the_first_stands():
 
     f = frame_object(rgb, SPEC, forgetful)
     assert len(calls) == 2 and f.box == (560, 900, 680, 1080)
+
+
+def test_clean_mask_is_its_whole_image_definition():
+    """On random soft masks: the mask itself when every component is kept, else the mask where a
+    pixel is within 2 pixels (4-connected steps) of a kept component and 0 elsewhere; NoObjectError
+    when too little is kept; ``area`` sets what the kept share is of."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(0)
+    spec = MaskSpec()
+    checked = 0
+    for _ in range(200):
+        h, w = (int(v) for v in rng.integers(20, 160, 2))
+        soft = ndimage.gaussian_filter(rng.random((h, w)).astype(np.float32), rng.uniform(0.5, 4))
+        soft = np.clip((soft - soft.mean()) * rng.uniform(5, 40) + 0.3, 0, 1).astype(np.float32)
+        labels, n = ndimage.label(soft > 0.5)
+        sizes = np.bincount(labels.ravel(), minlength=n + 1)[1:]
+        keep = np.flatnonzero(sizes >= spec.keep * sizes.max()) + 1 if n else np.array([], int)
+        if n == 0 or sizes[keep - 1].sum() < spec.min_area * soft.size:
+            with pytest.raises(NoObjectError):
+                clean_mask(soft, spec)
+            continue
+        near = ndimage.binary_dilation(np.isin(labels, keep), iterations=2)
+        want = soft if len(keep) == n else np.where(near, soft, 0)
+        assert np.array_equal(clean_mask(soft, spec), want), (h, w)
+        checked += 1
+    assert checked > 100
+    dot = np.zeros((10, 10), np.float32)
+    dot[4:6, 4:6] = 1                                           # 4 pixels: 4% of its own 100, 0.1% of 4,000
+    assert clean_mask(dot, spec)[4, 4] == 1
+    with pytest.raises(NoObjectError, match="0.10% of it"):
+        clean_mask(dot, spec, area=4000)

@@ -141,3 +141,61 @@ def test_rgb_of_drops_the_alpha_and_is_contiguous():
     rgb = rgb_of(rgba)
     assert rgb.flags.c_contiguous and np.array_equal(rgb, rgba[..., :3])
     assert np.array_equal(rgb_of(rgba[:, ::2]), rgba[:, ::2, :3])      # a strided view too
+
+
+def _encode(img: Image.Image, fmt: str, **kw) -> bytes:
+    buf = io.BytesIO()
+    img.save(buf, format=fmt, **kw)
+    return buf.getvalue()
+
+
+def test_decode_photo_reduces_a_large_photo_to_the_working_size_and_keeps_its_upload_size():
+    from model.preprocess import decode_photo
+
+    rng = np.random.default_rng(0)
+    small = rng.integers(0, 256, (30, 40, 3), dtype=np.uint8)
+    big = Image.fromarray(small).resize((2000, 1500), Image.Resampling.NEAREST)        # 4:3, short side 1500
+    for fmt in ("JPEG", "PNG"):
+        d = decode_photo(_encode(big, fmt, **({"quality": 95} if fmt == "JPEG" else {})), work_side=600)
+        assert d.size == (1500, 2000) and d.rgba.shape == (600, 800, 4) and d.rgba.dtype == np.uint8
+        back = np.asarray(Image.fromarray(d.rgba[..., :3]).resize((40, 30), Image.Resampling.BOX), np.float32)
+        assert np.abs(back - small).mean() < 6                  # the same picture, only smaller
+    full = decode_photo(_encode(big, "PNG"), work_side=None)
+    assert full.rgba.shape == (1500, 2000, 4) and full.size == (1500, 2000)
+    little = _encode(Image.fromarray(small), "PNG")             # already below the working size: untouched
+    assert np.array_equal(decode_photo(little, work_side=600).rgba, decode_image(little))
+
+
+def test_decode_photo_size_follows_the_exif_rotation():
+    from model.preprocess import decode_photo
+
+    img = Image.fromarray(np.zeros((1200, 1800, 3), np.uint8))
+    exif = Image.Exif()
+    exif[0x0112] = 6                                           # rotated a quarter: the sides swap
+    d = decode_photo(_encode(img, "JPEG", exif=exif), work_side=600)
+    assert d.size == (1800, 1200) and d.rgba.shape[:2] == (900, 600)
+
+
+def test_reducing_a_transparent_image_does_not_bleed_the_hidden_colour():
+    from model.preprocess import decode_photo
+
+    rgba = np.zeros((1000, 1000, 4), np.uint8)
+    rgba[..., 0] = 255                                          # hidden red under full transparency
+    rgba[:, 505:] = (0, 0, 255, 255)                            # an opaque blue right half
+    d = decode_photo(_encode(Image.fromarray(rgba, "RGBA"), "PNG"), work_side=100)
+    edge = d.rgba[:, 50]                                        # half transparent, half blue
+    assert d.rgba.shape == (100, 100, 4) and 100 < edge[0, 3] < 160
+    assert edge[0, 0] <= 2 and edge[0, 2] >= 250                # blue, not purple
+
+
+def test_upload_box_and_mask_scale_back_to_the_uploaded_image():
+    from model.preprocess import Framed, upload_box, upload_mask
+
+    mask = np.zeros((100, 150), np.uint8)
+    mask[20:40, 30:61] = 255
+    framed = Framed(np.zeros((3, 8, 8), np.float32), "network", (20, 30, 40, 61), mask, (100, 150), (300, 450))
+    assert upload_box(framed) == (60, 90, 120, 183)
+    big = upload_mask(framed)
+    assert big.shape == (300, 450) and big[61:119, 91:182].min() == 255 and big[:55].max() == 0
+    same = Framed(framed.image, "network", framed.box, mask, (100, 150))
+    assert upload_box(same) == same.box and upload_mask(same) is mask

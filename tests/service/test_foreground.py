@@ -269,3 +269,24 @@ def test_models_reports_the_foreground_network_and_ratio(client, fg_client):
     assert image_model(client)["foreground_ratio"] == image_model(fg_client)["foreground_ratio"] == 0.9
     others = [m for m in client.get("/v1/models").json()["models"] if m["task"] != "image-to-shape"]
     assert others and all(m["foreground_network"] is None and m["foreground_ratio"] is None for m in others)
+
+
+@pytest.mark.parametrize("fmt", ["JPEG", "PNG"])
+def test_a_large_photo_is_worked_on_reduced_and_answered_in_its_own_pixels(fg_client, segment_calls, fmt):
+    """A 1600 x 2400 photo (short side over the working size): the network sees it reduced to 1024 on
+    its short side, the crop box and the debug mask come back in the upload's pixels."""
+    img, mask = scene(160, 240, (40, 90, 110, 170))
+    big = np.asarray(Image.fromarray(img).resize((2400, 1600), Image.Resampling.NEAREST))
+    data = _encoded(Image.fromarray(big), fmt)
+    r = post(fg_client, data)
+    assert r.status_code == 200, r.text
+    assert segment_calls[0].shape[:2] == (1024, 1536)                     # then a second look at its square
+    assert all(max(c.shape[:2]) <= 1536 for c in segment_calls)
+    want = tuple(10 * v for v in true_box(mask))                # the object's box in the upload's pixels
+    assert np.abs(np.subtract(crop_box(r), want)).max() <= 4
+    got = post(fg_client, data, debug="mask")
+    assert got.status_code == 200 and crop_box(got) == crop_box(r)
+    m = np.asarray(Image.open(io.BytesIO(got.content))) > 127
+    assert m.shape == (1600, 2400)
+    big_mask = np.asarray(Image.fromarray(mask).resize((2400, 1600), Image.Resampling.NEAREST))
+    assert (m & big_mask).sum() / (m | big_mask).sum() > 0.97
