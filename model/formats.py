@@ -15,7 +15,7 @@ from dataclasses import dataclass
 POINT_FORMATS = "PLY, XYZ/TXT, NPY, NPZ or OBJ vertices"
 """The point cloud formats every point-cloud input takes (with or without normals)."""
 MESH_FORMATS = "OBJ, OFF, STL, PLY, GLB or glTF"
-IMAGE_FORMATS = "PNG, JPEG, WebP, GIF, BMP or TIFF"
+IMAGE_FORMATS = "PNG, JPEG, HEIC, WebP, AVIF, GIF, BMP or TIFF"
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,8 @@
 """Image preprocessing for shape-from-a-single-image, one function for training and serving.
 
-Decodes anything Pillow reads (EXIF rotation applied, first frame of animations, palette, 16-bit,
-CMYK, greyscale), composites or keeps the background, crops to the object, pads to a square,
-resizes and normalises.  NumPy + Pillow only: training, evaluation, export and the service all
+Decodes anything Pillow reads, and HEIC through pillow-heif (EXIF rotation applied, first frame of
+animations, palette, 16-bit, CMYK, greyscale), composites or keeps the background, crops to the object, pads to a square,
+resizes and normalises.  NumPy + Pillow only (no torch): training, evaluation, export and the service all
 call :func:`prepare_image` with the model's :class:`ImageSpec`, so they see identical tensors.
 """
 
@@ -16,6 +16,9 @@ from pathlib import Path
 
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
+from pillow_heif import register_heif_opener
+
+register_heif_opener()          # HEIC/HEIF, the photos of phones that do not save JPEG, read like any other
 
 MAX_PIXELS_DEFAULT = 40_000_000
 """Images with more pixels than this are refused before decoding (decompression bombs)."""
@@ -118,7 +121,8 @@ def decode_photo(data: bytes | str | Path, max_pixels: int = MAX_PIXELS_DEFAULT,
         except ImageError:
             raise
         except (UnidentifiedImageError, Image.DecompressionBombError, Image.DecompressionBombWarning):
-            raise ImageError("the data is not an image Pillow can read (PNG, JPEG, WebP, GIF, BMP, TIFF, ...)") from None
+            raise ImageError("the data is not an image Pillow can read (PNG, JPEG, HEIC, WebP, AVIF, GIF, BMP, TIFF, "
+                             "...)") from None
         except (OSError, SyntaxError, ValueError, EOFError, IndexError, KeyError, struct.error) as exc:
             raise ImageError(f"the image is truncated or corrupt ({type(exc).__name__}); send the whole file") from None
 

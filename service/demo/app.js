@@ -5,7 +5,7 @@ import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
 const TASKS = {   // radio value -> endpoint, multipart field, served model task (null: needs no model), hint
-  'image-to-shape': { field: 'image', model: 'image-to-shape', hint: 'PNG, JPEG, WebP, GIF, BMP or TIFF of one object.' },
+  'image-to-shape': { field: 'image', model: 'image-to-shape', hint: 'PNG, JPEG, HEIC, WebP, AVIF, GIF, BMP or TIFF of one object.' },
   'complete': { field: 'points', model: 'completion', hint: 'A partial scan: PLY, XYZ/TXT, NPY, NPZ or OBJ vertices.' },
   'octree': { field: 'shape', model: null, hint: 'A mesh (OBJ, OFF, STL, PLY, GLB, glTF) or a point cloud.' },
   'classify': { field: 'shape', model: 'classify', hint: 'A mesh or a point cloud.' },

@@ -7,6 +7,7 @@ import numpy as np
 from fastapi import APIRouter, Depends, File, Header, Query, UploadFile
 from fastapi.responses import Response
 
+from model.formats import IMAGE_FORMATS
 from model.octree.build import MAX_BUILD_DEPTH
 from model.preprocess import Framed, upload_box
 from model.surface import DEFAULT_SURFACE
@@ -98,7 +99,7 @@ async def _submit(eng: Engine, task: str, request: Request) -> MeshFile:
 
 @router.post("/image-to-shape", response_class=Response, responses=IMAGE_RESPONSE,
              summary="A photo of one object -> its 3D shape as a mesh (closed, or the leaf patches)")
-async def image_to_shape(image: UploadFile = File(..., description="PNG, JPEG, WebP, GIF, BMP or TIFF of one object"),
+async def image_to_shape(image: UploadFile = File(..., description=f"{IMAGE_FORMATS} of one object"),
                          format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q, surface: Surface = SURFACE_Q,
                          faces: int | None = FACES_Q, color_by_depth: bool = COLOR_Q,
                          remove_background: RemoveBackground = REMOVE_BACKGROUND_Q,

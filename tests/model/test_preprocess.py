@@ -199,3 +199,15 @@ def test_upload_box_and_mask_scale_back_to_the_uploaded_image():
     assert big.shape == (300, 450) and big[61:119, 91:182].min() == 255 and big[:55].max() == 0
     same = Framed(framed.image, "network", framed.box, mask, (100, 150))
     assert upload_box(same) == same.box and upload_mask(same) is mask
+
+
+def test_heic_and_avif_photos_decode_to_the_picture_saved():
+    """HEIC (through pillow-heif) and AVIF (Pillow's own) decode to the picture that was saved."""
+    rng = np.random.default_rng(0)
+    small = rng.integers(0, 256, (12, 16, 3), dtype=np.uint8)
+    img = Image.fromarray(small).resize((160, 120), Image.Resampling.NEAREST)
+    for fmt in ("HEIF", "AVIF"):
+        got = decode_image(_encode(img, fmt, quality=90))
+        assert got.shape == (120, 160, 4) and got[..., 3].min() == 255
+        back = np.asarray(Image.fromarray(got[..., :3]).resize((16, 12), Image.Resampling.BOX), np.float32)
+        assert np.abs(back - small).mean() < 12, fmt

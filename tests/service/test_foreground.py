@@ -245,6 +245,18 @@ def test_16_bit_greyscale_and_cmyk_photos(fg_client, segment_calls):
         assert np.abs(np.subtract(crop_box(r), true_box(mask))).max() <= 2
 
 
+def test_a_heic_phone_photo(fg_client, segment_calls):
+    """HEIC, what phones save when they do not save JPEG, read like a JPEG (a lying file name and
+    type change nothing)."""
+    img, mask = scene()
+    data = _encoded(Image.fromarray(img), "HEIF")
+    assert data[4:12] == b"ftypheic"
+    r = fg_client.post("/v1/image-to-shape", files={"image": ("p.png", data, "image/png")})
+    assert r.status_code == 200, r.text
+    assert r.headers["x-mask"] == "network" and len(segment_calls) >= 1
+    assert np.abs(np.subtract(crop_box(r), true_box(mask))).max() <= 2
+
+
 def test_the_real_foreground_graph_runs(fg_client, foreground_models_dir):
     """No patch: the bundle's ONNX foreground network (random weights, its head biased to "object")."""
     img, _ = scene(120, 200)
