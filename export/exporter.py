@@ -9,6 +9,7 @@ codes and matched torch (:func:`self_check`): a half-written or wrong bundle nev
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import importlib.metadata
 import json
 import shutil
@@ -99,7 +100,7 @@ def _io_spec(src: Loaded, task: str, foreground: Loaded | None = None) -> tuple[
         spec = src.config.image_spec()
         inp = {"kind": "image", "image": dataclasses.asdict(spec)}
         if foreground is not None:
-            inp["foreground"] = TASKS["foreground"].spec(foreground.config).to_dict()
+            inp["foreground"] = TASKS["foreground"].spec(foreground.config, foreground.meta).to_dict()
     else:
         inp = {"kind": "points", "points": {**POINT_LIMITS, "normals": "estimated when absent"}}
         if task == "completion":
@@ -161,6 +162,14 @@ def foreground_check(runtime: Runtime, foreground: Loaded, photos: list[np.ndarr
         raise BundleError(f"onnxruntime ({precision}) and torch foreground logits differ by {diff:.2e} "
                           f"({agree:.4%} of pixels agree)")
     return {"foreground_logit_max_abs_diff": diff, "foreground_pixel_agreement": agree}
+
+
+def bundle_version(graphs: dict[str, dict], inp: dict, outp: dict) -> str:
+    """The package's version and a digest of what a bundle serves: every graph (its sha256) and the
+    input and output settings (the preprocessing, the foreground network's mask settings, the decode
+    settings), so that anything that changes an answer changes the version."""
+    served = {"graphs": {name: g["sha256"] for name, g in sorted(graphs.items())}, "input": inp, "output": outp}
+    return f"{importlib.metadata.version('adaptive-ocnn')}+{hashlib.sha256(json_text(served).encode()).hexdigest()[:12]}"
 
 
 def probe_octrees(depth: int, batch: int = 3, seed: int = 0) -> Octree:
@@ -258,10 +267,9 @@ def export(source: str | Path, out: str | Path, name: str | None = None, force: 
             write_atomic(path, g.model)
             specs[g.name] = GraphSpec(g.name, path.name, sha256_file(path), g.inputs, g.outputs).to_json()
         inp, outp = _io_spec(src, task, fg)
-        weights = src.meta.get("weights_sha256") or (specs.get("decoder_start") or specs["octree_encoder"])["sha256"]
         meta = {
             "format": BUNDLE_FORMAT if getattr(src.model, "guided", False) else 1, "task": task, "name": name or task,
-            "version": f"{importlib.metadata.version('adaptive-ocnn')}+{weights[:12]}",
+            "version": bundle_version(specs, inp, outp),
             "octree": _octree_spec(src), "input": inp, "output": outp,
             "categories": list(src.config.categories or CATEGORIES),
             "graphs": specs,

@@ -2,6 +2,7 @@
 
     python -m model.calibrate RUN --data DIR --out CALIBRATED_RUN [--split val]
     python -m model.calibrate COMPLETION_RUN --data DIR --keep-scan [--split val]
+    python -m model.calibrate FOREGROUND_RUN --data DIR --mask-guide [--split val]
 
 A class-balanced structure loss makes the *split* class survive, at the price of predicting it
 more often than it occurs where the network cannot tell *split* from *leaf* (the depth-5
@@ -10,6 +11,10 @@ decoded trees grow.  This step picks, per adaptive depth, a bias added to the sp
 that the teacher-forced number of predicted splits on the validation split equals the true
 number, and writes a copy of the run with the bias folded into the prediction module's last
 layer: evaluation, export and serving then need no extra setting.
+
+``--mask-guide`` (foreground networks) chooses, on the validation split's photo-like views, the
+guided filter their masks go through (:func:`calibrate_mask_guide`); export carries it into the
+image bundle.
 
 ``--keep-scan`` (completion models) chooses, on the validation split, the bias towards *empty*
 that the decoder uses when the output keeps the scan's own patches (:func:`calibrate_keep_scan`);
@@ -34,7 +39,7 @@ from .checkpoint import load_model
 from .evaluate import decoded_points
 from .octree.metrics import chamfer_distance
 from .train.completion import truth_view
-from .train.config import KEEP_SCAN_FILE, load_checkpoint
+from .train.config import KEEP_SCAN_FILE, MASK_GUIDE_FILE, load_checkpoint
 from .train.tasks import TASKS, encode_with_guide
 from .cli import command_parser
 
@@ -166,11 +171,70 @@ def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int
               "scan_chamfer_x1e3_category_mean": round(float(np.mean([np.mean(v) for v in floor.values()])), 4),
               "candidates": [{"empty_bias": {str(d): b for d, b in c.items()}, "chamfer_x1e3_category_mean": round(m, 4)}
                              for c, m in zip(candidates, means)]}
+    record_with_run(run, loaded.meta, "keep_scan", KEEP_SCAN_FILE, report)
+    return report
+
+
+def record_with_run(run: str, meta: dict, key: str, filename: str, report: dict) -> None:
+    """Keep a calibration ``report`` with the run it was made for: as ``key`` of a checkpoint
+    folder's model.json (``meta`` is that file's content), else as ``filename`` in the run folder
+    (read back into the run's provenance by :func:`model.train.config.read_run`)."""
     path = Path(run)
-    if (path / "model.json").is_file():           # a checkpoint folder: loaded.meta is its model.json
-        write_atomic(path / "model.json", json_text({**loaded.meta, "keep_scan": report}).encode())
+    if (path / "model.json").is_file():
+        write_atomic(path / "model.json", json_text({**meta, key: report}).encode())
     else:
-        write_atomic(path / KEEP_SCAN_FILE, json_text(report).encode())
+        write_atomic(path / filename, json_text(report).encode())
+
+
+MASK_GUIDE_RADII = (0.0, 1.0, 1.5, 2.0, 2.5, 3.0)
+"""Guided-filter radii tried by ``--mask-guide``, in the foreground network's pixels (0: none)."""
+MASK_GUIDE_EPS = (3e-5, 1e-4, 3e-4)
+"""Guided-filter regularisers tried by ``--mask-guide`` (the guide is the grey image in [0, 1])."""
+
+
+def calibrate_mask_guide(run: str, data: str, split: str = "val", limit: int | None = None) -> dict:
+    """Choose the guided filter of a foreground network's masks (:class:`model.preprocess.MaskSpec`
+    ``guide``, ``guide_eps``) by the category-mean mask IoU of the split's photo-like views through
+    the service's path, and record it with the run (model.json's ``mask_guide`` of a checkpoint
+    folder, else mask_guide.json of the run folder).  The network runs in torch, once per distinct
+    image (looks repeat across candidates)."""
+    import dataclasses
+
+    from .data.photos import photo_split_view
+    from .evaluate import mask_ious, torch_segment
+
+    loaded = load_model(run)
+    cfg = loaded.config
+    if cfg.task != "foreground":
+        raise ValueError(f"--mask-guide calibrates a foreground network, not a {cfg.task} model")
+    cfg.data = data
+    records = TASKS[cfg.task].dataset(cfg, split, 0, limit=limit)
+    photos = [photo_split_view(s.images, s.shape_id) for s in records.samples]
+    base = dataclasses.replace(TASKS[cfg.task].spec(cfg), guide=0.0)
+    network, seen = torch_segment(loaded.model, base), {}
+
+    def segment(rgb: np.ndarray) -> np.ndarray:
+        key = (rgb.shape, hash(rgb.tobytes()))
+        if key not in seen:
+            seen[key] = network(rgb)
+        return seen[key]
+
+    candidates = [(0.0, MASK_GUIDE_EPS[0])] + [(r, e) for r in MASK_GUIDE_RADII if r > 0 for e in MASK_GUIDE_EPS]
+    categories = [s.category for s in records.samples]
+    means = []
+    for radius, eps in candidates:
+        ious = mask_ious(photos, segment, dataclasses.replace(base, guide=radius, guide_eps=eps))
+        per_cat = {c: [] for c in sorted(set(categories))}
+        for c, iou in zip(categories, ious):
+            per_cat[c].append(iou)
+        means.append(float(np.mean([np.mean(v) for v in per_cat.values()])))
+    best = int(np.argmax(means))
+    radius, eps = candidates[best]
+    report = {"radius": radius, "eps": eps, "split": split, "photos": len(photos),
+              "mask_iou_category_mean": round(means[best], 4),
+              "candidates": [{"radius": r, "eps": e, "mask_iou_category_mean": round(m, 4)}
+                             for (r, e), m in zip(candidates, means)]}
+    record_with_run(run, loaded.meta, "mask_guide", MASK_GUIDE_FILE, report)
     return report
 
 
@@ -178,21 +242,29 @@ def main(argv: list[str] | None = None) -> int:
     ap = command_parser("python -m model.calibrate", __doc__, [
         "python -m model.calibrate runs/img --data data/procedural --out runs/img-cal"])
     ap.add_argument("run", help="run folder of an aocnn decoder (autoencoder, image or completion model); with "
-                    "--keep-scan also a checkpoint folder")
+                    "--keep-scan also a checkpoint folder; with --mask-guide a foreground run or checkpoint folder")
     ap.add_argument("--data", required=True, help="dataset folder the run was trained on")
     ap.add_argument("--out", default=None, help="folder for the calibrated copy of the run (split biases)")
     ap.add_argument("--split", default="val", choices=("train", "val"), help="split to calibrate on (default val)")
     ap.add_argument("--keep-scan", action="store_true",
                     help="completion: instead of the split biases, choose the empty-class bias for outputs that "
                          "keep the scan and record it with the run (model.json or keep_scan.json)")
-    ap.add_argument("--limit", type=int, default=None, help="--keep-scan: the first N shapes of the split only")
+    ap.add_argument("--mask-guide", action="store_true",
+                    help="foreground network: choose the guided filter of its masks and record it with the run "
+                         "(model.json or mask_guide.json)")
+    ap.add_argument("--limit", type=int, default=None,
+                    help="--keep-scan, --mask-guide: the first N shapes of the split only")
     ap.add_argument("--resolution", type=int, default=128,
                     help="--keep-scan: patch sampling grid, a power of two (default 128, the paper's)")
     args = ap.parse_args(argv)
     try:
         if args.limit is not None and args.limit < 1:
             raise ValueError("--limit must be at least 1")
-        if args.keep_scan:
+        if args.keep_scan and args.mask_guide:
+            raise ValueError("give one of --keep-scan and --mask-guide")
+        if args.mask_guide:
+            report = calibrate_mask_guide(args.run, args.data, args.split, limit=args.limit)
+        elif args.keep_scan:
             report = calibrate_keep_scan(args.run, args.data, args.split, limit=args.limit,
                                          resolution=args.resolution)
         elif args.out is None:
@@ -202,6 +274,11 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if args.mask_guide:
+        none = report["candidates"][0]["mask_iou_category_mean"]
+        print(f"{args.run}: guided filter radius {report['radius']:g}, eps {report['eps']:g}: mask IoU "
+              f"{report['mask_iou_category_mean']:.4f} on {report['photos']} {report['split']} photos (none: {none:.4f})")
+        return 0
     if args.keep_scan:
         bias = ", ".join(f"depth {d} {b:+.1f}" for d, b in report["empty_bias"].items()) or "none"
         print(f"{args.run}: keep_scan empty bias {bias}: Chamfer x1e3 {report['chamfer_x1e3_category_mean']:.3f} "

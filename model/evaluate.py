@@ -229,7 +229,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     if cfg.task == "classify":
         return evaluate_classifier(model, cfg, run, split, limit, runtime=runtime, bundle=bundle)
     if cfg.task == "foreground":
-        return evaluate_foreground(model, cfg, run, split, limit, runtime=runtime, bundle=bundle)
+        return evaluate_foreground(model, cfg, run, split, limit, runtime=runtime, bundle=bundle, meta=loaded.meta)
     octree_decoder = isinstance(model.decoder, OctreeDecoder)
     if oracle != "none" and not octree_decoder:
         raise ValueError("--oracle needs an octree decoder")
@@ -389,42 +389,57 @@ def evaluate_classifier(model, cfg: TrainConfig, run: str, split: str = "test", 
             "seconds": time.perf_counter() - t}
 
 
-def evaluate_foreground(model, cfg: TrainConfig, run: str, split: str = "test", limit: int | None = None,
-                        runtime=None, bundle: str | None = None) -> dict:
-    """Mask IoU of the foreground network on each shape's photo-like test view (a render on a
-    held-out background, no alpha: :func:`model.data.photos.photo_split_view`), at the photo's own
-    resolution, through the service's path (:func:`model.preprocess.object_mask`: clean-up, a second
-    pass on a small object in a large photo; a photo where it finds nothing scores 0); per category and overall, with the share of photos above 0.9."""
-    from .data.photos import photo_split_view
-    from .preprocess import NoObjectError, mask_input, mask_iou, mask_output, object_mask
-
-    spec = runtime.bundle.mask_spec() if runtime is not None else TASKS[cfg.task].spec(cfg)
+def torch_segment(model, spec):
+    """The foreground network of a loaded model in torch, as :meth:`export.runtime.Runtime.segment`
+    runs its graph: an (H, W, 3) uint8 image to its (H, W) object probability."""
+    from .preprocess import mask_input, mask_output
 
     def segment(rgb: np.ndarray) -> np.ndarray:
-        if runtime is not None:
-            return runtime.segment(rgb)
         with torch.no_grad():
             logits = model.net(torch.from_numpy(mask_input(rgb, spec)[None])).numpy()
         return mask_output(logits[0, 0], rgb.shape[0], rgb.shape[1])
+    return segment
 
-    records = TASKS[cfg.task].dataset(cfg, split, 0, limit=limit)
-    rows, t = [], time.perf_counter()
-    for s in records.samples:
-        photo = photo_split_view(s.images, s.shape_id)
-        h, w = photo.rgb.shape[:2]
+
+def mask_ious(photos: list, segment, spec) -> list[float]:
+    """Mask IoU of each photo (a :class:`model.data.photos.Photo`) through the service's path
+    (:func:`model.preprocess.object_mask` with ``segment`` and ``spec``), at its own resolution;
+    0 where nothing is found."""
+    from .preprocess import NoObjectError, mask_iou, object_mask
+
+    out = []
+    for photo in photos:
         try:
             ours = object_mask(photo.rgb, segment, spec) > 0.5
         except NoObjectError:
-            ours = np.zeros((h, w), bool)
-        truth = photo.mask > 0.5
-        iou = mask_iou(ours, truth)
-        rows.append({"category": s.category, "shape_id": s.shape_id, "mask_iou": iou,
-                     "object_share": float(truth.mean()), "photo_size": [h, w]})
+            ours = np.zeros(photo.mask.shape, bool)
+        out.append(mask_iou(ours, photo.mask > 0.5))
+    return out
+
+
+def evaluate_foreground(model, cfg: TrainConfig, run: str, split: str = "test", limit: int | None = None,
+                        runtime=None, bundle: str | None = None, meta: dict | None = None) -> dict:
+    """Mask IoU of the foreground network on each shape's photo-like test view (a render on a
+    held-out background, no alpha: :func:`model.data.photos.photo_split_view`), at the photo's own
+    resolution, through the service's path (:func:`model.preprocess.object_mask`: the guided filter,
+    clean-up, a second pass on a small object in a large photo; a photo where it finds nothing
+    scores 0); per category and overall, with the share of photos above 0.9.  ``meta``: the run's
+    provenance (its calibrated guided filter), for the network in torch."""
+    from .data.photos import photo_split_view
+
+    spec = runtime.bundle.mask_spec() if runtime is not None else TASKS[cfg.task].spec(cfg, meta)
+    segment = runtime.segment if runtime is not None else torch_segment(model, spec)
+    records = TASKS[cfg.task].dataset(cfg, split, 0, limit=limit)
+    t = time.perf_counter()
+    views = [(s, photo_split_view(s.images, s.shape_id)) for s in records.samples]
+    rows = [{"category": s.category, "shape_id": s.shape_id, "mask_iou": iou,
+             "object_share": float((photo.mask > 0.5).mean()), "photo_size": list(photo.mask.shape)}
+            for (s, photo), iou in zip(views, mask_ious([p for _, p in views], segment, spec))]
     ious = np.array([r["mask_iou"] for r in rows])
     per_cat = {c: float(np.mean([r["mask_iou"] for r in rows if r["category"] == c]))
                for c in sorted({r["category"] for r in rows})}
     return {"run": str(run), "task": cfg.task, "arch": cfg.arch, "split": split, "bundle": bundle,
-            "shapes": len(rows), "input": {"kind": "photos"}, "mask_iou": per_cat,
+            "shapes": len(rows), "input": {"kind": "photos"}, "mask_spec": spec.to_dict(), "mask_iou": per_cat,
             "mask_iou_category_mean": float(np.mean(list(per_cat.values()))), "mask_iou_mean": float(ious.mean()),
             "mask_iou_median": float(np.median(ious)), "mask_iou_above_0.9": float((ious > 0.9).mean()),
             "per_shape": rows, "seconds": time.perf_counter() - t}

@@ -294,7 +294,11 @@ class MaskSpec:
     again (None: ``size``).  A network trained without second looks' views keeps the default: a
     smaller square, enlarged to ``size``, is blurred as none of its training photos is, and its
     second mask was worse than the first (validation IoU 0.814 against 0.836 without those second
-    looks, docs/RESULTS.md)."""
+    looks, docs/RESULTS.md).  ``guide``: the radius, in the network's pixels, of the guided filter
+    each look's mask goes through at the image's resolution (:func:`guided_filter`, with the
+    regulariser ``guide_eps``; 0: none), which brings back the edges and thin parts that the
+    network's 128² loses; chosen on the validation split by ``python -m model.calibrate
+    --mask-guide``."""
 
     size: int = 128
     mean: tuple[float, float, float] = (0.5, 0.5, 0.5)
@@ -304,6 +308,8 @@ class MaskSpec:
     refine: float = 0.5
     refine_margin: float = 0.2
     refine_min: int | None = None
+    guide: float = 0.0
+    guide_eps: float = 1e-4
 
     @property
     def refine_side(self) -> int:
@@ -382,6 +388,27 @@ def clean_mask(mask: np.ndarray, spec: MaskSpec, area: int | None = None) -> np.
     return out
 
 
+def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: int, eps: float) -> np.ndarray:
+    """``p`` (H, W) in [0, 1] filtered with the grey image of ``rgb`` (H, W, 3) uint8 as its guide
+    (He, Sun and Tang's guided filter, ECCV 2010): in every (2 radius + 1)² window the output is a
+    linear function ``a I + b`` of the guide fitted to ``p`` by least squares with the regulariser
+    ``eps`` on ``a``, the fits of the windows over a pixel averaged.  Where the image has an edge
+    inside a window the mask follows it (the edges and thin parts a low-resolution mask blurs);
+    where the image is flat the mask is smoothed.  Float32 (H, W), clipped to [0, 1]."""
+    from scipy import ndimage
+
+    guide = rgb.mean(axis=2, dtype=np.float32) / np.float32(255)
+    p = np.asarray(p, np.float32)
+
+    def box(x: np.ndarray) -> np.ndarray:
+        return ndimage.uniform_filter(x, 2 * radius + 1, mode="reflect")
+
+    mean_i, mean_p = box(guide), box(p)
+    a = (box(guide * p) - mean_i * mean_p) / (box(guide * guide) - mean_i * mean_i + np.float32(eps))
+    b = mean_p - a * mean_i
+    return np.clip(box(a) * guide + box(b), 0.0, 1.0)
+
+
 def object_square(box: tuple[int, int, int, int], height: int, width: int, margin: float) -> tuple[int, int, int, int]:
     """(y0, y1, x0, x1), exclusive: the square about ``box`` (top, left, bottom, right) whose side
     is the box's longest side grown by ``margin`` on each side, clipped to a height x width image:
@@ -403,18 +430,27 @@ def refine_square(box: tuple[int, int, int, int], height: int, width: int,
 
 def object_mask(rgb: np.ndarray, segment, spec: MaskSpec) -> np.ndarray:
     """(H, W) float32 object mask of an opaque image from ``segment`` (the foreground network: an
-    (h, w, 3) uint8 image to its (h, w) object probability), specks removed (:func:`clean_mask`;
-    NoObjectError when nothing is left); a small object in a large photo is segmented again in its
-    square (see :class:`MaskSpec`), the second mask replacing the first there and clearing it
-    elsewhere (unless it finds nothing: then the first stands)."""
+    (h, w, 3) uint8 image to its (h, w) object probability), through ``spec``'s guided filter,
+    specks removed (:func:`clean_mask`; NoObjectError when nothing is left); a small object in a
+    large photo is segmented again in its square (see :class:`MaskSpec`), the second mask
+    replacing the first there and clearing it elsewhere (unless it finds nothing: then the first
+    stands)."""
     h, w = rgb.shape[:2]
-    mask = clean_mask(np.asarray(segment(rgb), np.float32), spec)
+
+    def look(image: np.ndarray) -> np.ndarray:
+        p = np.asarray(segment(image), np.float32)
+        if spec.guide > 0:
+            radius = max(1, round(spec.guide * max(image.shape[:2]) / spec.size))
+            p = guided_filter(image, p, radius, spec.guide_eps)
+        return p
+
+    mask = clean_mask(look(rgb), spec)
     square = refine_square(mask_bounds(mask > 0.5), h, w, spec)
     if square is None or min(square[1] - square[0], square[3] - square[2]) < spec.refine_side:
         return mask
     y0, y1, x0, x1 = square
     try:
-        part = clean_mask(np.asarray(segment(np.ascontiguousarray(rgb[y0:y1, x0:x1])), np.float32), spec, h * w)
+        part = clean_mask(look(np.ascontiguousarray(rgb[y0:y1, x0:x1])), spec, h * w)
     except NoObjectError:                # the closer look lost the object: keep the first look's mask
         return mask
     fine = np.zeros_like(mask)

@@ -341,11 +341,13 @@ def photo_split_view(images: np.ndarray, shape_id: str) -> Photo:
     return photo_composite(images[view], np.random.default_rng(seed), "test", TEST_STYLE)
 
 
-def generated_photos(per_category: int = 2, views: int = 2, seed: int = 0) -> list[Photo]:
+def generated_photos(per_category: int = 2, views: int = 2, seed: int = 0,
+                     style: PhotoStyle = PhotoStyle(scenes=FIRST_SCENES)) -> list[Photo]:
     """Training-like photos without a dataset: the generator's first ``per_category`` training
     shapes of every category (dataset seed 0), each rendered from ``views`` random viewpoints as
-    the dataset renders them and composited on training backgrounds, all drawn from ``seed``.
-    What the export calibrates a quantised foreground network with."""
+    the dataset renders them and composited on training backgrounds in ``style``, all drawn from
+    ``seed``.  What the export calibrates a quantised foreground network with (by default on the
+    scenes the shipped network was trained on, so that its int8 graph is made again bit for bit)."""
     from .render import render_views
     from .shapes import CATEGORIES, generate, split_of
 
@@ -355,7 +357,7 @@ def generated_photos(per_category: int = 2, views: int = 2, seed: int = 0) -> li
         indices = (i for i in range(10 ** 6) if split_of(category, i) == "train")
         for _, index in zip(range(per_category), indices):
             images, _ = render_views(generate(category, index), n_views=views, rng=rng)
-            photos += [photo_composite(image, rng, "train") for image in images]
+            photos += [photo_composite(image, rng, "train", style) for image in images]
     return photos
 
 

@@ -151,6 +151,11 @@ KEEP_SCAN_FILE = "keep_scan.json"
 in model.json's ``keep_scan``), written by ``python -m model.calibrate --keep-scan``."""
 
 
+MASK_GUIDE_FILE = "mask_guide.json"
+"""A foreground run folder's guided filter of its masks (a checkpoint folder keeps it in
+model.json's ``mask_guide``), written by ``python -m model.calibrate --mask-guide``."""
+
+
 INIT_FILE = "init.json"
 """A run folder's record of the weights it started from (``--init``): the folder given, its
 weights' sha256 (a checkpoint folder's) and steps; :mod:`model.release` copies it to model.json."""
@@ -174,8 +179,9 @@ def read_run(path: str | Path) -> SavedRun:
         meta = {"config": {k: v for k, v in state["config"].items() if k not in ("out", "progress")},
                 "steps": state.get("step"), "calibration": state.get("calibration"),
                 "weights_sha256": None, "source_run": str(path.resolve())}
-        if (path / KEEP_SCAN_FILE).is_file():
-            meta["keep_scan"] = json.loads((path / KEEP_SCAN_FILE).read_text())
+        for key, name in (("keep_scan", KEEP_SCAN_FILE), ("mask_guide", MASK_GUIDE_FILE)):
+            if (path / name).is_file():
+                meta[key] = json.loads((path / name).read_text())
     else:
         raise ValueError(f"{path}: neither a run folder (checkpoint.pt) nor a checkpoint folder "
                          f"(model.pt + model.json)")

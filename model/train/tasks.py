@@ -275,10 +275,14 @@ class ForegroundTask:
         if not 0 <= cfg.crop_share <= 1:
             raise ValueError(f"--crop-share must be in 0..1, got {cfg.crop_share}")
 
-    def spec(self, cfg) -> MaskSpec:
+    def spec(self, cfg, meta: dict | None = None) -> MaskSpec:
         """How the network takes images: a network trained on second looks' views (``crop_share``)
-        looks again at small squares too (:data:`TRAINED_REFINE_MIN`)."""
-        return MaskSpec(size=cfg.image_size, refine_min=TRAINED_REFINE_MIN if cfg.crop_share > 0 else None)
+        looks again at small squares too (:data:`TRAINED_REFINE_MIN`); the guided filter of its
+        masks is the one calibrated for it (``meta``'s ``mask_guide``: a run's or checkpoint's
+        provenance), else none."""
+        guide = (meta or {}).get("mask_guide") or {}
+        return MaskSpec(size=cfg.image_size, refine_min=TRAINED_REFINE_MIN if cfg.crop_share > 0 else None,
+                        guide=float(guide.get("radius", 0.0)), guide_eps=float(guide.get("eps", MaskSpec.guide_eps)))
 
     def dataset(self, cfg, split, seed, points=2048, limit=None):
         # renders only: a dataset of any octree depth serves (the same shapes, the same renders)

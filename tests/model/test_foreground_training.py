@@ -232,3 +232,35 @@ def test_photo_inputs_are_framed_objects_for_any_draw():
         rgb = x.transpose(1, 2, 0) * 0.25 + 0.5
         blue = (rgb[..., 2] - rgb[..., 0]) > 0.15
         assert blue[12:20, 14:18].mean() > 0.5          # the object is in the middle of the input
+
+
+def test_the_guided_filter_is_calibrated_on_validation_recorded_and_exported(tiny_data, runs, tmp_path, capsys):
+    """``--mask-guide`` scores every candidate on the split's photo-like views, keeps the best, writes
+    mask_guide.json (a run) or model.json (a checkpoint folder); evaluation and export take it."""
+    import shutil
+
+    from export.bundle import load_bundle
+    from export.exporter import export
+    from model.calibrate import MASK_GUIDE_EPS, MASK_GUIDE_RADII, main
+    from model.evaluate import evaluate
+
+    run = tmp_path / "fg"
+    shutil.copytree(runs / "fg", run)
+    assert main([str(run), "--data", str(tiny_data), "--split", "train", "--mask-guide", "--limit", "3"]) == 0
+    assert "guided filter radius" in capsys.readouterr().out
+    report = json.loads((run / "mask_guide.json").read_text())
+    scores = [c["mask_iou_category_mean"] for c in report["candidates"]]
+    assert len(scores) == 1 + (len(MASK_GUIDE_RADII) - 1) * len(MASK_GUIDE_EPS)
+    assert report["mask_iou_category_mean"] == max(scores) and report["photos"] == 3
+    best = report["candidates"][int(np.argmax(scores))]
+    assert (report["radius"], report["eps"]) == (best["radius"], best["eps"])
+    res = evaluate(str(run), str(tiny_data), "train", limit=3)
+    assert res["mask_spec"]["guide"] == report["radius"] and res["mask_spec"]["guide_eps"] == report["eps"]
+    assert res["mask_iou_category_mean"] == pytest.approx(report["mask_iou_category_mean"], abs=1e-4)
+    meta = export(runs / "img", tmp_path / "b", foreground=run, foreground_precision="float32")
+    spec = load_bundle(tmp_path / "b").mask_spec()
+    assert (spec.guide, spec.guide_eps) == (report["radius"], report["eps"])
+    assert meta["version"] != export(runs / "img", tmp_path / "c", foreground=runs / "fg",
+                                     foreground_precision="float32")["version"]   # what is served differs
+    assert main([str(runs / "img"), "--data", str(tiny_data), "--mask-guide"]) == 2
+    assert "foreground network" in capsys.readouterr().err
