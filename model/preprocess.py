@@ -388,25 +388,42 @@ def clean_mask(mask: np.ndarray, spec: MaskSpec, area: int | None = None) -> np.
     return out
 
 
-def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: int, eps: float) -> np.ndarray:
+GUIDE_SIDE = 512
+"""The guided filter's coefficients are computed on the image reduced to at most this long side (the
+fast guided filter, He and Sun 2015: they vary slowly, and are upsampled bilinearly); no photo of
+the photo-like splits is larger, a large photo's filter costs a tenth of the full computation."""
+
+
+def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float, side: int = GUIDE_SIDE) -> np.ndarray:
     """``p`` (H, W) in [0, 1] filtered with the grey image of ``rgb`` (H, W, 3) uint8 as its guide
     (He, Sun and Tang's guided filter, ECCV 2010): in every (2 radius + 1)² window the output is a
     linear function ``a I + b`` of the guide fitted to ``p`` by least squares with the regulariser
     ``eps`` on ``a``, the fits of the windows over a pixel averaged.  Where the image has an edge
     inside a window the mask follows it (the edges and thin parts a low-resolution mask blurs);
-    where the image is flat the mask is smoothed.  Float32 (H, W), clipped to [0, 1]."""
+    where the image is flat the mask is smoothed.  An image longer than ``side`` has its
+    coefficients computed at that size.  Float32 (H, W), clipped to [0, 1]."""
     from scipy import ndimage
 
     guide = rgb.mean(axis=2, dtype=np.float32) / np.float32(255)
     p = np.asarray(p, np.float32)
+    h, w = p.shape
+    f = min(1.0, side / max(h, w))
+    if f < 1:
+        lh, lw = max(1, round(h * f)), max(1, round(w * f))
+        g, q = resize_mask(guide, lh, lw), resize_mask(p, lh, lw)
+    else:
+        g, q = guide, p
+    size = 2 * max(1, round(radius * f)) + 1
 
     def box(x: np.ndarray) -> np.ndarray:
-        return ndimage.uniform_filter(x, 2 * radius + 1, mode="reflect")
+        return ndimage.uniform_filter(x, size, mode="reflect")
 
-    mean_i, mean_p = box(guide), box(p)
-    a = (box(guide * p) - mean_i * mean_p) / (box(guide * guide) - mean_i * mean_i + np.float32(eps))
-    b = mean_p - a * mean_i
-    return np.clip(box(a) * guide + box(b), 0.0, 1.0)
+    mean_i, mean_p = box(g), box(q)
+    a = (box(g * q) - mean_i * mean_p) / (box(g * g) - mean_i * mean_i + np.float32(eps))
+    a_mean, b_mean = box(a), box(mean_p - a * mean_i)
+    if f < 1:
+        a_mean, b_mean = resize_mask(a_mean, h, w), resize_mask(b_mean, h, w)
+    return np.clip(a_mean * guide + b_mean, 0.0, 1.0)
 
 
 def object_square(box: tuple[int, int, int, int], height: int, width: int, margin: float) -> tuple[int, int, int, int]:

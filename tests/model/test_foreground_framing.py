@@ -262,3 +262,23 @@ def test_object_mask_applies_the_guided_filter_to_each_look():
     plain, guided = iou(MaskSpec(refine=0)), iou(MaskSpec(refine=0, guide=2.5, guide_eps=1e-4))
     assert guided > 0.9 and guided > plain + 0.05
     assert MaskSpec.from_dict({"size": 128}).guide == 0.0       # bundles without it: no filter
+
+
+def test_the_guided_filter_of_a_large_image_is_computed_reduced_and_agrees_with_the_full_one():
+    from scipy import ndimage
+
+    from model.preprocess import guided_filter
+
+    rng = np.random.default_rng(0)
+    rgb = np.full((900, 1200, 3), 200, np.uint8)
+    truth = np.zeros((900, 1200), bool)
+    for _ in range(6):                                          # dark boxes and bars
+        y, x = rng.integers(0, 800), rng.integers(0, 1100)
+        hh, ww = rng.integers(8, 200), rng.integers(8, 200)
+        rgb[y:y + hh, x:x + ww], truth[y:y + hh, x:x + ww] = 40, True
+    rgb = np.clip(rgb + rng.normal(0, 6, rgb.shape), 0, 255).astype(np.uint8)
+    p = np.clip(ndimage.gaussian_filter(truth.astype(np.float32), 8) * 2, 0, 1)
+    full = guided_filter(rgb, p, 24, 1e-4, side=10 ** 6)
+    fast = guided_filter(rgb, p, 24, 1e-4)                      # coefficients at 512 px
+    assert np.abs(fast - full).mean() < 0.01
+    assert np.mean((fast > 0.5) == (full > 0.5)) > 0.995
