@@ -394,18 +394,35 @@ fast guided filter, He and Sun 2015: they vary slowly, and are upsampled bilinea
 the photo-like splits is larger, a large photo's filter costs a tenth of the full computation."""
 
 
+GUIDE_SUPPORT = 0.02
+"""The guided filter runs only within two windows of where ``p`` exceeds this (elsewhere: 0)."""
+
+
 def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float, side: int = GUIDE_SIDE) -> np.ndarray:
-    """``p`` (H, W) in [0, 1] filtered with the grey image of ``rgb`` (H, W, 3) uint8 as its guide
+    """``p`` (H, W) in [0, 1] filtered with the grey image (luma) of ``rgb`` (H, W, 3) uint8 as its guide
     (He, Sun and Tang's guided filter, ECCV 2010): in every (2 radius + 1)² window the output is a
     linear function ``a I + b`` of the guide fitted to ``p`` by least squares with the regulariser
     ``eps`` on ``a``, the fits of the windows over a pixel averaged.  Where the image has an edge
     inside a window the mask follows it (the edges and thin parts a low-resolution mask blurs);
-    where the image is flat the mask is smoothed.  An image longer than ``side`` has its
+    where the image is flat the mask is smoothed.  It is computed only within two windows of where
+    ``p`` exceeds :data:`GUIDE_SUPPORT` (0 further away), and an image longer than ``side`` has its
     coefficients computed at that size.  Float32 (H, W), clipped to [0, 1]."""
     from scipy import ndimage
 
-    guide = rgb.mean(axis=2, dtype=np.float32) / np.float32(255)
     p = np.asarray(p, np.float32)
+    support = mask_bounds(p > GUIDE_SUPPORT)
+    if support is None:
+        return np.zeros_like(p)
+    reach = 2 * int(np.ceil(radius)) + 2              # a pixel's output reads p within two windows
+    top, left = max(0, support[0] - reach), max(0, support[1] - reach)
+    bottom, right = min(p.shape[0], support[2] + reach), min(p.shape[1], support[3] + reach)
+    if (bottom - top) * (right - left) < p.size:      # the filter where p has support, 0 elsewhere
+        out = np.zeros_like(p)
+        out[top:bottom, left:right] = guided_filter(rgb[top:bottom, left:right], p[top:bottom, left:right],
+                                                    radius, eps, side)
+        return out
+    grey = Image.fromarray(np.ascontiguousarray(rgb[..., :3]), "RGB").convert("L")      # luma, ITU-R 601
+    guide = np.asarray(grey, np.float32) / np.float32(255)
     h, w = p.shape
     f = min(1.0, side / max(h, w))
     if f < 1:
