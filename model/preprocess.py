@@ -390,17 +390,18 @@ def clean_mask(mask: np.ndarray, spec: MaskSpec, area: int | None = None) -> np.
 
 GUIDE_SIDE = 512
 """The guided filter's coefficients are computed on the image reduced to at most this long side (the
-fast guided filter, He and Sun 2015: they vary slowly, and are upsampled bilinearly); no photo of
-the photo-like splits is larger, a large photo's filter costs a tenth of the full computation."""
+fast guided filter, He and Sun 2015: they vary slowly, and are upsampled bilinearly), so that their
+cost does not grow with the photo; no photo of the photo-like splits is larger."""
 
 
 GUIDE_SUPPORT = 0.02
 """The guided filter runs only within two windows of where ``p`` exceeds this (elsewhere: 0)."""
 
 
-def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float, side: int = GUIDE_SIDE) -> np.ndarray:
-    """``p`` (H, W) in [0, 1] filtered with the grey image (luma) of ``rgb`` (H, W, 3) uint8 as its guide
-    (He, Sun and Tang's guided filter, ECCV 2010): in every (2 radius + 1)² window the output is a
+def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float,
+                  side: int = GUIDE_SIDE) -> np.ndarray:
+    """``p`` (H, W) in [0, 1] filtered with the grey image (luma) of ``rgb`` (H, W, 3) uint8 as its
+    guide (He, Sun and Tang's guided filter, ECCV 2010): in every (2 radius + 1)² window the output is a
     linear function ``a I + b`` of the guide fitted to ``p`` by least squares with the regulariser
     ``eps`` on ``a``, the fits of the windows over a pixel averaged.  Where the image has an edge
     inside a window the mask follows it (the edges and thin parts a low-resolution mask blurs);
