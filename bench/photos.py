@@ -87,37 +87,49 @@ def jpeg(rgb: np.ndarray, quality: int = 90) -> bytes:
     return buf.getvalue()
 
 
-def test_photos(data: str, shapes: int) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
-    """(category, shape id, photo RGB, exact mask) of the first ``shapes`` test shapes, spread over
-    the categories, on their photo-like test views."""
+def test_rows(data: str, shapes: int) -> list[tuple[dict, np.ndarray]]:
+    """(manifest row, renders) of the first ``shapes`` test shapes, spread over the categories."""
     from model.data.dataset import load_record
-    from model.data.photos import photo_split_view
     from model.train.data import manifest_rows
 
     _, rows = manifest_rows(Path(data), "test")
     rows = sorted(rows, key=lambda r: (rows.index(r) % 10, r["category"]))[:shapes]
+    return [(r, load_record(Path(data) / r["path"])["images"]) for r in rows]
+
+
+def test_photos(data: str, shapes: int) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+    """(category, shape id, photo RGB, exact mask) of the first ``shapes`` test shapes, spread over
+    the categories, on their photo-like test views."""
+    from model.data.photos import photo_split_view
+
     out = []
-    for r in rows:
-        photo = photo_split_view(load_record(Path(data) / r["path"])["images"], r["shape_id"])
+    for r, images in test_rows(data, shapes):
+        photo = photo_split_view(images, r["shape_id"])
         out.append((r["category"], r["shape_id"], photo.rgb, photo.mask))
     return out
 
 
+def time_requests(runtime, photos: list[bytes], repeats: int, remove_background: str = "auto",
+                  work_side: int | None = WORK_SIDE_DEFAULT) -> tuple[dict, list[Reconstruction]]:
+    """Median seconds per request (``total``) and per stage over ``repeats`` passes over ``photos``
+    after a warm-up, and the first pass's reconstructions."""
+    for data in photos[:2]:
+        reconstruct(data, runtime, remove_background, work_side)          # warm-up
+    totals, stages, first = [], {}, []
+    for i in range(repeats):
+        for data in photos:
+            r = reconstruct(data, runtime, remove_background, work_side)
+            totals.append(sum(r.seconds.values()))
+            for k, v in r.seconds.items():
+                stages.setdefault(k, []).append(v)
+            if i == 0:
+                first.append(r)
+    return {"total": float(np.median(totals)), **{k: float(np.median(v)) for k, v in stages.items()}}, first
+
+
 def timing(runtime, photos: list[bytes], repeats: int) -> dict:
     """Median seconds per request and per stage, with and without background removal."""
-    out = {}
-    for mode in ("false", "auto"):
-        for data in photos[:2]:
-            reconstruct(data, runtime, mode)                 # warm-up
-        totals, stages = [], {}
-        for _ in range(repeats):
-            for data in photos:
-                r = reconstruct(data, runtime, mode)
-                totals.append(sum(r.seconds.values()))
-                for k, v in r.seconds.items():
-                    stages.setdefault(k, []).append(v)
-        out[mode] = {"total": float(np.median(totals)), **{k: float(np.median(v)) for k, v in stages.items()}}
-    return out
+    return {mode: time_requests(runtime, photos, repeats, mode)[0] for mode in ("false", "auto")}
 
 
 PHONE_SHORT_SIDE = 3000
@@ -130,18 +142,13 @@ def phone_photos(data: str, shapes: int) -> list[tuple[bytes, np.ndarray]]:
     exact mask (bool)."""
     import dataclasses
 
-    from model.data.dataset import load_record
     from model.data.photos import TEST_STYLE, photo_composite
     from model.data.shapes import stable_hash
-    from model.train.data import manifest_rows
 
     style = dataclasses.replace(TEST_STYLE, short_side=(PHONE_SHORT_SIDE, PHONE_SHORT_SIDE), aspect=(4 / 3, 4 / 3))
-    _, rows = manifest_rows(Path(data), "test")
-    rows = sorted(rows, key=lambda r: (rows.index(r) % 10, r["category"]))[:shapes]
     out = []
-    for r in rows:
+    for r, images in test_rows(data, shapes):
         rng = np.random.default_rng(stable_hash("phone-photo", r["shape_id"]))
-        images = load_record(Path(data) / r["path"])["images"]
         photo = photo_composite(images[int(rng.integers(len(images)))], rng, "test", style)
         out.append((jpeg(photo.rgb), photo.mask > 0.5))
     return out
@@ -157,19 +164,12 @@ def phone_timing(runtime, photos: list[tuple[bytes, np.ndarray]], repeats: int) 
 
     out = {}
     for name, side in (("full size", None), ("working size", WORK_SIDE_DEFAULT)):
-        totals, stages, ious = [], {}, []
-        reconstruct(photos[0][0], runtime, "auto", side)                    # warm-up
-        for i in range(repeats):
-            for data, truth in photos:
-                r = reconstruct(data, runtime, "auto", side)
-                totals.append(sum(r.seconds.values()))
-                for k, v in r.seconds.items():
-                    stages.setdefault(k, []).append(v)
-                if i == 0:
-                    mask = upload_mask(dataclasses.replace(r.framed, size=truth.shape))
-                    ious.append(mask_iou(mask > 127, truth) if mask is not None else 0.0)
-        out[name] = {"total": float(np.median(totals)), **{k: float(np.median(v)) for k, v in stages.items()},
-                     "mask_iou": float(np.mean(ious))}
+        times, first = time_requests(runtime, [data for data, _ in photos], repeats, "auto", side)
+        ious = []
+        for r, (_, truth) in zip(first, photos):
+            mask = upload_mask(dataclasses.replace(r.framed, size=truth.shape))
+            ious.append(mask_iou(mask > 127, truth) if mask is not None else 0.0)
+        out[name] = {**times, "mask_iou": float(np.mean(ious))}
     return out
 
 

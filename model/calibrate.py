@@ -201,7 +201,7 @@ def calibrate_mask_guide(run: str, data: str, split: str = "val", limit: int | N
     import dataclasses
 
     from .data.photos import photo_split_view
-    from .evaluate import mask_ious, torch_segment
+    from .evaluate import category_means, mask_ious, torch_segment
 
     loaded = load_model(run)
     cfg = loaded.config
@@ -224,10 +224,7 @@ def calibrate_mask_guide(run: str, data: str, split: str = "val", limit: int | N
     means = []
     for radius, eps in candidates:
         ious = mask_ious(photos, segment, dataclasses.replace(base, guide=radius, guide_eps=eps))
-        per_cat = {c: [] for c in sorted(set(categories))}
-        for c, iou in zip(categories, ious):
-            per_cat[c].append(iou)
-        means.append(float(np.mean([np.mean(v) for v in per_cat.values()])))
+        means.append(float(np.mean(list(category_means(categories, ious).values()))))
     best = int(np.argmax(means))
     radius, eps = candidates[best]
     report = {"radius": radius, "eps": eps, "split": split, "photos": len(photos),

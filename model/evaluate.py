@@ -401,6 +401,14 @@ def torch_segment(model, spec):
     return segment
 
 
+def category_means(categories: list[str], values: list[float]) -> dict[str, float]:
+    """The mean of ``values`` per category (``categories[i]`` is ``values[i]``'s), sorted by name."""
+    by: dict[str, list[float]] = {}
+    for c, v in zip(categories, values):
+        by.setdefault(c, []).append(v)
+    return {c: float(np.mean(by[c])) for c in sorted(by)}
+
+
 def mask_ious(photos: list, segment, spec) -> list[float]:
     """Mask IoU of each photo (a :class:`model.data.photos.Photo`) through the service's path
     (:func:`model.preprocess.object_mask` with ``segment`` and ``spec``), at its own resolution;
@@ -436,8 +444,7 @@ def evaluate_foreground(model, cfg: TrainConfig, run: str, split: str = "test", 
              "object_share": float((photo.mask > 0.5).mean()), "photo_size": list(photo.mask.shape)}
             for (s, photo), iou in zip(views, mask_ious([p for _, p in views], segment, spec))]
     ious = np.array([r["mask_iou"] for r in rows])
-    per_cat = {c: float(np.mean([r["mask_iou"] for r in rows if r["category"] == c]))
-               for c in sorted({r["category"] for r in rows})}
+    per_cat = category_means([r["category"] for r in rows], list(ious))
     return {"run": str(run), "task": cfg.task, "arch": cfg.arch, "split": split, "bundle": bundle,
             "shapes": len(rows), "input": {"kind": "photos"}, "mask_spec": spec.to_dict(), "mask_iou": per_cat,
             "mask_iou_category_mean": float(np.mean(list(per_cat.values()))), "mask_iou_mean": float(ious.mean()),
