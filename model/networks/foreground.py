@@ -50,9 +50,15 @@ class ForegroundNet(nn.Module):
         return self.head(x)
 
 
-def mask_losses(logits: torch.Tensor, masks: torch.Tensor) -> dict[str, torch.Tensor]:
+def mask_losses(logits: torch.Tensor, masks: torch.Tensor, skeletons: torch.Tensor | None = None,
+                skeleton_weight: float = 0.0) -> dict[str, torch.Tensor]:
     """Binary cross-entropy plus soft Dice (``total``), and the batch's IoU at 0.5 (``iou``,
-    reported, not trained): ``masks`` (B, 1, S, S) coverage in [0, 1]."""
+    reported, not trained): ``masks`` (B, 1, S, S) coverage in [0, 1].  With ``skeletons`` (B, 1,
+    S, S) in {0, 1}, the masks' tubed skeletons (:func:`model.train.foreground.tubed_skeletons`),
+    also the skeleton recall loss (Kirchhoff et al., ECCV 2024), ``1 -`` the share of each
+    skeleton the soft mask covers, averaged over the images that have one (``skeleton``; added to
+    ``total`` times ``skeleton_weight``): a leg or a wing's edge lost costs as much as the body's
+    middle, whatever its area."""
     bce = F.binary_cross_entropy_with_logits(logits, masks)
     p = torch.sigmoid(logits)
     inter = (p * masks).sum(dim=(1, 2, 3))
@@ -60,15 +66,25 @@ def mask_losses(logits: torch.Tensor, masks: torch.Tensor) -> dict[str, torch.Te
     with torch.no_grad():
         hard, truth = logits > 0, masks > 0.5
         iou = ((hard & truth).sum(dim=(1, 2, 3)).float() + 1e-6) / ((hard | truth).sum(dim=(1, 2, 3)).float() + 1e-6)
-    return {"total": bce + dice.mean(), "bce": bce, "dice": dice.mean(), "iou": iou.mean()}
+    out = {"total": bce + dice.mean(), "bce": bce, "dice": dice.mean(), "iou": iou.mean()}
+    if skeletons is not None:
+        length = skeletons.sum(dim=(1, 2, 3))
+        recall = (p * skeletons).sum(dim=(1, 2, 3)) / length.clamp(min=1)
+        has = (length > 0).to(p.dtype)
+        out["skeleton"] = ((1 - recall) * has).sum() / has.sum().clamp(min=1)
+        out["total"] = out["total"] + skeleton_weight * out["skeleton"]
+    return out
 
 
 class ForegroundModel(nn.Module):
-    """The training wrapper: ``forward(images, masks)`` returns :func:`mask_losses`."""
+    """The training wrapper: ``forward(images, masks[, skeletons])`` returns :func:`mask_losses`
+    (the skeleton recall term weighted by ``skeleton_weight``)."""
 
-    def __init__(self, width: int = 8, levels: int = 5):
+    def __init__(self, width: int = 8, levels: int = 5, skeleton_weight: float = 0.0):
         super().__init__()
         self.net = ForegroundNet(width, levels)
+        self.skeleton_weight = skeleton_weight
 
-    def forward(self, images: torch.Tensor, masks: torch.Tensor) -> dict[str, torch.Tensor]:
-        return mask_losses(self.net(images), masks)
+    def forward(self, images: torch.Tensor, masks: torch.Tensor,
+                skeletons: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        return mask_losses(self.net(images), masks, skeletons, self.skeleton_weight)

@@ -114,6 +114,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     f.add_argument("--crop-share", type=float, default=0.0,
                    help="share of the samples that are a second look's view: the object's square cut from "
                         "the photo, as the service looks again at a small object (default 0)")
+    f.add_argument("--skeleton-weight", type=float, default=0.0,
+                   help="weight of the skeleton recall loss: the share of each target's thinned object "
+                        "(legs, slats, a wing's edge) the mask misses (default 0: none)")
     f.add_argument("--image-size", type=int, default=128,
                    help="the network's input side: photos are resized to it (default 128, a multiple of 16)")
     c = sub.add_parser("completion", parents=[common],

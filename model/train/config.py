@@ -60,6 +60,7 @@ class TrainConfig:
     up: str = "y"                              # classify: the up axis of the dataset's shapes
     skips: bool = False                        # completion: output-guided skip connections
     crop_share: float = 0.0                    # foreground: samples that are a second look's view
+    skeleton_weight: float = 0.0               # foreground: weight of the skeleton recall loss (thin parts)
     init: str | None = None                    # a run or checkpoint folder whose weights a new run starts from
 
     def image_spec(self) -> ImageSpec:

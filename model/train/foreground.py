@@ -6,12 +6,16 @@ Every sample is a random view of a shape placed on a random background by
 to the network's resolution.  A share of the samples (``crop_share``) is what a second look sees
 (:func:`second_look`): the object's square cut from the photo and enlarged to the network's input.
 Validation draws one fixed composite per shape (training backgrounds; the held-out photographs
-are for the test split only).
+are for the test split only).  A network trained for thin parts also gets each target's tubed
+skeleton (:func:`tubed_skeletons`) for the skeleton recall loss.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from scipy import ndimage
+from skimage.morphology import skeletonize
 
 from ..data.photos import Photo, mask_box, photo_composite
 from ..data.shapes import stable_hash
@@ -56,3 +60,16 @@ def mask_batch(samples: list[Sample], spec: MaskSpec, rng: np.random.Generator |
         images[i] = mask_input(photo.rgb, spec)
         masks[i, 0] = np.clip(resize_mask(photo.mask, spec.size, spec.size), 0, 1)
     return images, masks
+
+
+def tubed_skeletons(masks: np.ndarray) -> np.ndarray:
+    """The tubed skeletons of target masks (B, 1, S, S) in [0, 1]: each mask's object (coverage
+    > 0.5) thinned to one-pixel lines (:func:`skimage.morphology.skeletonize`) and dilated by
+    one pixel (a 3x3 cross), as float32 in {0, 1}; all zero for an image without the object.
+    Every skeleton pixel lies on the object: the tube is cut to it."""
+    out = np.zeros_like(masks, dtype=np.float32)
+    cross = ndimage.generate_binary_structure(2, 1)
+    for i, m in enumerate(masks[:, 0] > 0.5):
+        if m.any():
+            out[i, 0] = ndimage.binary_dilation(skeletonize(m), cross) & m
+    return out

@@ -168,7 +168,7 @@ class Trainer:
         saved = asdict(config_from_dict(state["config"]))
         for key in ("task", "arch", "depth", "latent", "channels", "batch_size", "seed", "structure_loss",
                     "pred_hidden", "decoder_blocks", "encoder", "encoder_width", "image_size", "categories",
-                    "teacher", "up", "skips", "crop_share", "init"):
+                    "teacher", "up", "skips", "crop_share", "skeleton_weight", "init"):
             if saved[key] != getattr(self.cfg, key):
                 raise ValueError(f"{self.ckpt_path} was trained with {key}={saved[key]!r}, not "
                                  f"{getattr(self.cfg, key)!r}; use another --out")

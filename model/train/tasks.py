@@ -22,7 +22,7 @@ from ..nn.tensors import OctreeTensors
 from ..preprocess import ImageSpec, MaskSpec, prepare_image
 from .config import TrainConfig, read_run
 from .data import RecordSet
-from .foreground import mask_batch
+from .foreground import mask_batch, tubed_skeletons
 from .images import eval_view, image_batch
 
 
@@ -274,6 +274,8 @@ class ForegroundTask:
             raise ValueError(f"--image-size must be a multiple of 16 in 32..512, got {cfg.image_size}")
         if not 0 <= cfg.crop_share <= 1:
             raise ValueError(f"--crop-share must be in 0..1, got {cfg.crop_share}")
+        if not cfg.skeleton_weight >= 0:
+            raise ValueError(f"--skeleton-weight must be 0 or more, got {cfg.skeleton_weight}")
 
     def spec(self, cfg, meta: dict | None = None) -> MaskSpec:
         """How the network takes images: a network trained on second looks' views (``crop_share``)
@@ -291,10 +293,12 @@ class ForegroundTask:
 
     def build_model(self, cfg):
         from ..networks.foreground import ForegroundModel
-        return ForegroundModel(cfg.encoder_width or FOREGROUND_WIDTH)
+        return ForegroundModel(cfg.encoder_width or FOREGROUND_WIDTH, skeleton_weight=cfg.skeleton_weight)
 
     def inputs(self, cfg, dataset, indices, rng):
         images, masks = mask_batch([dataset.samples[i] for i in indices], self.spec(cfg), rng, cfg.crop_share)
+        if cfg.skeleton_weight > 0:
+            return torch.from_numpy(images), torch.from_numpy(masks), torch.from_numpy(tubed_skeletons(masks))
         return torch.from_numpy(images), torch.from_numpy(masks)
 
     def encode(self, model, cfg, dataset, indices):

@@ -35,6 +35,57 @@ def test_the_losses_reward_the_right_mask():
     assert right["total"] < 0.01 < 1.5 < wrong["total"]
 
 
+def test_skeletons_follow_thin_parts_inside_the_object():
+    from model.train.foreground import tubed_skeletons
+
+    masks = np.zeros((3, 1, 64, 64), np.float32)
+    masks[0, 0, 10:40, 10:50] = 1                        # a seat
+    masks[0, 0, 40:62, 12:14] = masks[0, 0, 40:62, 46:48] = 0.9  # two legs, 2 px wide
+    masks[1, 0, 20:30, 20:30] = 0.4                      # coverage below one half: no object
+    s = tubed_skeletons(masks)
+    assert s.dtype == np.float32 and set(np.unique(s)) <= {0.0, 1.0}
+    assert s[1:].sum() == 0 and s[0].sum() > 0
+    assert np.all(s[0, 0][masks[0, 0] <= 0.5] == 0)      # the tube is cut to the object
+    for left in (12, 46):                                # each leg's skeleton runs most of its length
+        assert s[0, 0, 42:60, left:left + 2].any(axis=1).all()
+
+
+def test_the_skeleton_recall_loss_prices_a_lost_leg_above_its_area():
+    from model.train.foreground import tubed_skeletons
+
+    truth = np.zeros((1, 1, 64, 64), np.float32)
+    truth[..., 10:40, 10:50] = 1
+    truth[..., 40:62, 12:14] = 1                         # a 2-px leg: 44 of 1,244 pixels
+    skel = torch.from_numpy(tubed_skeletons(truth))
+    truth = torch.from_numpy(truth)
+    no_leg = truth.clone()
+    no_leg[..., 40:62, 12:14] = 0
+    thin_body = truth.clone()
+    thin_body[..., 10:12, 10:50] = 0                     # as many pixels lost from the seat's edge (80)
+    lose_leg = mask_losses(no_leg * 20 - 10, truth, skel, 1.0)
+    lose_edge = mask_losses(thin_body * 20 - 10, truth, skel, 1.0)
+    assert lose_leg["dice"] < lose_edge["dice"]          # by area the leg costs less ...
+    assert lose_leg["skeleton"] > 0.2 > 0.05 > lose_edge["skeleton"]  # ... by skeleton far more
+    assert lose_leg["total"] > lose_edge["total"]
+    plain = mask_losses(no_leg * 20 - 10, truth)
+    assert "skeleton" not in plain and float(lose_leg["total"] - plain["total"]) == pytest.approx(
+        float(lose_leg["skeleton"]))
+    empty = torch.zeros_like(truth)                      # no object: no skeleton, no skeleton loss
+    assert float(mask_losses(empty - 10, empty, torch.zeros_like(empty), 1.0)["skeleton"]) == 0.0
+
+
+def test_a_network_trained_for_thin_parts_gets_skeletons_and_keeps_its_weight(tiny_data, tmp_path):
+    t = Trainer(config(tiny_data, tmp_path / "skel", iters=2, skeleton_weight=1.0, **FG))
+    images, masks, skeletons = t.task.inputs(t.cfg, t.train_set, t.batch_indices(0), np.random.default_rng(0))
+    assert skeletons.shape == masks.shape and 0 < float(skeletons.sum()) < float((masks > 0.5).sum())
+    summary = t.run()
+    assert 0 <= summary["val"]["skeleton"] <= 1
+    with pytest.raises(ValueError, match="skeleton_weight"):
+        Trainer(config(tiny_data, tmp_path / "skel", iters=4, skeleton_weight=2.0, **FG))
+    with pytest.raises(ValueError, match="--skeleton-weight"):
+        Trainer(config(tiny_data, tmp_path / "bad", skeleton_weight=-1.0, **FG))
+
+
 def test_foreground_training_resumes_to_identical_weights_and_reports_iou(tiny_data, tmp_path):
     _, summary = trains_and_resumes_identically(tiny_data, tmp_path, **FG)
     assert 0 <= summary["val"]["iou"] <= 1 and np.isfinite(summary["val"]["total"])
