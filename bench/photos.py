@@ -173,13 +173,9 @@ def phone_timing(runtime, photos: list[tuple[bytes, np.ndarray]], repeats: int) 
     return out
 
 
-def real_mesh_photos(folder: Path, views: int) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
-    """(category, mesh name, photo RGB, exact mask) of each known real mesh in ``folder`` from
-    ``views`` viewpoints, composited on the held-out backgrounds as the photo-like test split is
-    (:data:`model.data.photos.TEST_STYLE`), with fixed seeds."""
-    from model.data.photos import TEST_STYLE, photo_composite
-    from model.data.render import render
-
+def real_meshes(folder: Path) -> list[tuple[str, str, trimesh.Trimesh]]:
+    """(file name, category, mesh) of each of :data:`REAL_MESHES` found in ``folder``, the mesh
+    turned y-up, centred, its longest bounding-box edge 1 (the generators' convention)."""
     out = []
     for name, (category, up) in REAL_MESHES.items():
         path = folder / name
@@ -189,7 +185,19 @@ def real_mesh_photos(folder: Path, views: int) -> list[tuple[str, str, np.ndarra
         v = mesh.vertices - (mesh.vertices.max(0) + mesh.vertices.min(0)) / 2
         if up == "z":                                        # to the renders' y-up convention
             v = v[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0])
-        mesh = trimesh.Trimesh(v / np.ptp(v, axis=0).max(), mesh.faces, process=False)
+        out.append((name, category, trimesh.Trimesh(v / np.ptp(v, axis=0).max(), mesh.faces, process=False)))
+    return out
+
+
+def real_mesh_photos(folder: Path, views: int) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+    """(category, mesh name, photo RGB, exact mask) of each known real mesh in ``folder`` from
+    ``views`` viewpoints, composited on the held-out backgrounds as the photo-like test split is
+    (:data:`model.data.photos.TEST_STYLE`), with fixed seeds."""
+    from model.data.photos import TEST_STYLE, photo_composite
+    from model.data.render import render
+
+    out = []
+    for name, category, mesh in real_meshes(folder):
         rng = np.random.default_rng(sum(map(ord, name)))
         for k in range(views):
             rgba, _ = render(mesh, float(rng.uniform(0, 360)), float(rng.uniform(20, 30)), 2.8, size=137,

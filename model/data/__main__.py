@@ -24,7 +24,7 @@ import time
 from ..octree.build import MAX_BUILD_DEPTH
 from .compare import compare_datasets
 from .dataset import SOURCES, BuildConfig, Shard, build_dataset, layout_tasks, merge_shards, procedural_tasks
-from .shapes import CATEGORIES
+from .shapes import CATEGORIES, GENERATORS
 from ..cli import command_parser
 
 
@@ -49,6 +49,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     b.add_argument("--seed", type=int, default=0, help="seed of shapes, renders and partial scans (default 0)")
     b.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 1)),
                    help="worker processes (default: all cores)")
+    b.add_argument("--generator", type=int, choices=sorted(GENERATORS), default=1,
+                   help="version of the procedural generators: " + "; ".join(f"{k}: {v}" for k, v in GENERATORS.items())
+                        + " (default 1)")
     b.add_argument("--views", type=int, default=24, help="renders per shape (default 24)")
     b.add_argument("--render-size", type=int, default=137, help="render side in pixels (default 137, 3D-R2N2's)")
     b.add_argument("--partial", type=int, default=2, help="partial scans per shape (default 2)")
@@ -95,6 +98,8 @@ def run(args: argparse.Namespace) -> dict:
                 raise ValueError(f"unknown categories {unknown}; valid: {', '.join(CATEGORIES)}")
         tasks = procedural_tasks(args.per_category, args.seed, cats or CATEGORIES)
     else:
+        if args.generator != 1:
+            raise ValueError("--generator applies to --source procedural only")
         if not args.root:
             raise ValueError(f"--root is required for --source {args.source}")
         tasks = layout_tasks(args.source, args.root, args.per_category, cats, args.shapenet_root)
@@ -105,7 +110,8 @@ def run(args: argparse.Namespace) -> dict:
         if not tasks:
             raise ValueError(f"no shapes of splits {', '.join(args.splits)} among those asked for")
     cfg = BuildConfig(depth=args.depth, views=args.views, render_size=args.render_size,
-                      partial_scans=args.partial, scan_resolution=args.scan_resolution, seed=args.seed)
+                      partial_scans=args.partial, scan_resolution=args.scan_resolution, seed=args.seed,
+                      generator=args.generator)
     return build_dataset(args.out, tasks, cfg, workers=args.workers, progress=not args.quiet, shard=shard)
 
 

@@ -12,7 +12,7 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from .render import render
-from .shapes import CATEGORIES, generate
+from .shapes import CATEGORIES, GENERATORS, generate
 from ..cli import command_parser
 
 
@@ -24,6 +24,7 @@ def sheet(
     azimuth_deg: float = 35.0,
     elevation_deg: float = 25.0,
     label: bool = True,
+    generator: int = 1,
 ) -> Image.Image:
     """Grid image with one row per category and ``n_per_category`` shapes per row.
 
@@ -36,7 +37,7 @@ def sheet(
         if label:
             draw.text((4, r * tile + tile // 2 - 6), cat, fill=(0, 0, 0))
         for c in range(n_per_category):
-            mesh = generate(cat, c, seed)
+            mesh = generate(cat, c, seed, generator)
             rgba, _ = render(mesh, azimuth_deg, elevation_deg, 2.6, size=tile, supersample=2,
                              color=(0.55, 0.62, 0.75))
             a = rgba[..., 3:4].astype(np.float64) / 255.0
@@ -45,17 +46,18 @@ def sheet(
     return img
 
 
-def write_sheets(out: Path, n_per_category: int = 12, overview_n: int = 6, seed: int = 0, tile: int = 128) -> list[Path]:
+def write_sheets(out: Path, n_per_category: int = 12, overview_n: int = 6, seed: int = 0, tile: int = 128,
+                 generator: int = 1, categories: tuple[str, ...] = CATEGORIES) -> list[Path]:
     """Write contact_sheet_<category>.png (one row per sheet, wrapped) and contact_sheet_overview.png."""
     out.mkdir(parents=True, exist_ok=True)
     paths = []
-    for cat in CATEGORIES:
-        img = sheet([cat], n_per_category, seed=seed, tile=tile)
+    for cat in categories:
+        img = sheet([cat], n_per_category, seed=seed, tile=tile, generator=generator)
         path = out / f"contact_sheet_{cat}.png"
         img.save(path, optimize=True)
         paths.append(path)
     path = out / "contact_sheet_overview.png"
-    sheet(CATEGORIES, overview_n, seed=seed, tile=tile).save(path, optimize=True)
+    sheet(categories, overview_n, seed=seed, tile=tile, generator=generator).save(path, optimize=True)
     paths.append(path)
     return paths
 
@@ -69,8 +71,13 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--overview-n", type=int, default=6, help="shapes per category on the overview (default 6)")
     p.add_argument("--seed", type=int, default=0, help="seed of the shapes (default 0)")
     p.add_argument("--tile", type=int, default=128, help="side of each rendered tile in pixels (default 128)")
+    p.add_argument("--generator", type=int, choices=sorted(GENERATORS), default=1,
+                   help="version of the generators (default 1)")
+    p.add_argument("--categories", nargs="+", choices=CATEGORIES, default=list(CATEGORIES),
+                   help="only these categories (default all)")
     args = p.parse_args(argv)
-    for path in write_sheets(args.out, args.n, args.overview_n, args.seed, args.tile):
+    for path in write_sheets(args.out, args.n, args.overview_n, args.seed, args.tile, args.generator,
+                             tuple(args.categories)):
         print(path)
 
 

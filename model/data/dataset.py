@@ -41,9 +41,18 @@ class BuildConfig:
     partial_scans: int = 2
     scan_resolution: int = 160
     seed: int = 0
+    generator: int = 1                               # procedural shapes: model.data.shapes.GENERATORS
+
+    def settings(self) -> dict:
+        """The settings as the manifest stores them; the first generator is not named, so the
+        datasets built before there was a second keep their manifests and fingerprints."""
+        d = asdict(self)
+        if d["generator"] == 1:
+            del d["generator"]
+        return d
 
     def fingerprint(self) -> str:
-        return hashlib.sha256(json.dumps(asdict(self), sort_keys=True).encode()).hexdigest()[:16]
+        return hashlib.sha256(json.dumps(self.settings(), sort_keys=True).encode()).hexdigest()[:16]
 
 
 @dataclass(frozen=True)
@@ -121,7 +130,8 @@ def scan_shape(task: ShapeTask, cfg: BuildConfig):
     and image position) and the random stream the rest of its record is drawn from: the first
     steps of :func:`build_record`, also used to cut new partial scans from a built dataset's shapes."""
     rng = np.random.default_rng(stable_hash("record", task.source, task.category, task.shape_id, cfg.seed))
-    mesh = generate(task.category, task.index, cfg.seed) if task.source == "procedural" else load_mesh(task.mesh_path)
+    mesh = (generate(task.category, task.index, cfg.seed, cfg.generator) if task.source == "procedural"
+            else load_mesh(task.mesh_path))
     mesh, mesh_norm = unit_mesh(mesh)
     return mesh, mesh_norm, scan_detailed(mesh, resolution=cfg.scan_resolution, rng=rng), rng
 
@@ -249,7 +259,7 @@ def _manifest(cfg: BuildConfig, done: list[RecordSummary], shard: Shard | None =
     done = sorted(done, key=lambda s: (s.category, s.shape_id))
     manifest = {
         "version": RECORD_VERSION,
-        "config": asdict(cfg),
+        "config": cfg.settings(),
         "config_fingerprint": cfg.fingerprint(),
         "splits": {sp: sum(1 for s in done if s.split == sp) for sp in ("train", "val", "test")},
         "records": [asdict(s) for s in done],

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from model.data.shapes import CATEGORIES, SYNSETS, generate, split_of
+from model.data.shapes import CATEGORIES, GENERATORS, SYNSETS, generate, split_of
 
 
 def test_categories_and_synsets():
@@ -91,3 +91,50 @@ def test_unknown_category_lists_valid_ones():
         generate("spaceship", 0)
     with pytest.raises(ValueError, match="valid categories"):
         split_of("spaceship", 0)
+
+
+def _same(a, b) -> bool:
+    return a.vertices.shape == b.vertices.shape and np.array_equal(a.vertices, b.vertices) \
+        and np.array_equal(a.faces, b.faces)
+
+
+def test_the_second_generator_changes_chairs_only():
+    assert sorted(GENERATORS) == [1, 2]
+    for category in CATEGORIES:
+        if category != "chair":
+            assert all(_same(generate(category, i, 5, 2), generate(category, i, 5, 1)) for i in range(3))
+    v1 = [generate("chair", i, 5, 1) for i in range(20)]
+    v2 = [generate("chair", i, 5, 2) for i in range(20)]
+    assert not any(_same(a, b) for a, b in zip(v1, v2))
+    assert all(_same(generate("chair", i, 5), a) for i, a in enumerate(v1[:3]))  # version 1 by default
+    with pytest.raises(ValueError, match="unknown generator 3"):
+        generate("chair", 0, 0, 3)
+
+
+@pytest.mark.parametrize("kind", ["folding", "panel", "cantilever", "club"])
+def test_the_new_chair_kinds_stand_upright_and_vary(kind):
+    from model.data.shapes.furniture import _CHAIR_KINDS
+
+    sizes = []
+    for i in range(8):
+        m = _CHAIR_KINDS[kind](np.random.default_rng(i)).mesh()
+        lo, hi = m.vertices.min(0), m.vertices.max(0)
+        assert np.isclose((hi - lo).max(), 1.0) and (hi - lo).min() > 0.3   # a chair, not a plate or a stick
+        assert (m.area_faces > 1e-10).mean() > 0.95
+        assert m.bounds[1][1] - m.bounds[0][1] > 0.55                     # standing: at least half as tall as wide
+        sizes.append(len(m.faces))
+        sizes.append(tuple(np.round(hi - lo, 3)))
+    assert len(set(sizes)) >= 8
+
+
+def test_the_new_kinds_are_drawn_at_their_shares(monkeypatch):
+    from model.data.shapes import furniture
+
+    made = []
+    monkeypatch.setattr(furniture, "_CHAIR_KINDS", {k: (lambda rng, k=k: made.append(k) or furniture.Assembly())
+                                                    for k in furniture.CHAIR_KINDS})
+    for i in range(2000):
+        furniture.chair_wider(np.random.default_rng(i))
+    for kind, share in furniture.CHAIR_KINDS.items():
+        assert abs(made.count(kind) / 2000 - share) < 0.025, kind
+    assert abs(len(made) / 2000 - sum(furniture.CHAIR_KINDS.values())) < 0.03

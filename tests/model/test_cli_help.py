@@ -67,10 +67,11 @@ def _mains():
     from model.degrade import main as degrade_main
     from model.data.contact_sheet import main as sheet_main
     from bench.conv import main as bench_conv_main
+    from bench.coverage import main as bench_coverage_main
     from bench.octree_build import main as bench_build_main
     from bench.octree_label_changes import main as bench_labels_main
     from bench.octree_versions import main as bench_versions_main
-    return {"model.data.contact_sheet": sheet_main, "bench.conv": bench_conv_main,
+    return {"model.data.contact_sheet": sheet_main, "bench.conv": bench_conv_main, "bench.coverage": bench_coverage_main,
             "bench.octree_build": bench_build_main, "bench.octree_label_changes": bench_labels_main,
             "bench.octree_versions": bench_versions_main, "model.train": train_main, "model.evaluate": evaluate_main, "model.data": data_main,
             "model.octree": octree_main, "model.results_table": table_main, "model.figures": figures_main,

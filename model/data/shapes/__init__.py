@@ -8,7 +8,8 @@ faces +Z (front; nose/muzzle/bow/screen towards +Z), the bounding box is
 centred at the origin and its longest edge has length 1.  Meshes are polygon
 soups: overlapping closed parts concatenated without boolean union.
 ``generate(category, index, seed)`` is deterministic: its generator is seeded
-from a SHA-256 hash of the three values (never Python's salted ``hash``).
+from a SHA-256 hash of the three values (never Python's salted ``hash``).  The generators have
+versions (:data:`GENERATORS`); a version's shapes never change once models were trained on them.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 import trimesh
 
 from .devices import display, lamp, loudspeaker, telephone
-from .furniture import bench, cabinet, chair, sofa, table
+from .furniture import bench, cabinet, chair, chair_wider, sofa, table
 from .vehicles import airplane, car, rifle, watercraft
 
 CATEGORIES: tuple[str, ...] = (
@@ -37,6 +38,13 @@ _GENERATORS = {
     "display": display, "lamp": lamp, "loudspeaker": loudspeaker, "rifle": rifle, "sofa": sofa,
     "table": table, "telephone": telephone, "watercraft": watercraft,
 }
+_WIDER = {"chair": chair_wider}
+GENERATORS: dict[int, str] = {
+    1: "the shapes every shipped model was trained on",
+    2: "the first's, with chairs also folding, on side slabs, cantilevered or upholstered club "
+       "armchairs (kinds real chairs showed the first lacking)",
+}
+"""The generator versions: version -> what it makes."""
 SPLIT_FRACTIONS: tuple[float, float, float] = (0.8, 0.1, 0.1)
 
 
@@ -61,14 +69,19 @@ def check_category(category: str) -> str:
     return category
 
 
-def generate(category: str, index: int, seed: int = 0) -> trimesh.Trimesh:
-    """Generate shape ``index`` of ``category``; deterministic in (category, index, seed).
+def generate(category: str, index: int, seed: int = 0, generator: int = 1) -> trimesh.Trimesh:
+    """Generate shape ``index`` of ``category`` with generator version ``generator``
+    (:data:`GENERATORS`); deterministic in (category, index, seed, generator), and the same shape
+    for every version where that version does not change the category.
 
     Returns a polygon-soup Trimesh normalised as described in the module docstring.
     """
     check_category(category)
+    if generator not in GENERATORS:
+        raise ValueError(f"unknown generator {generator!r}; versions: {', '.join(map(str, GENERATORS))}")
     rng = np.random.default_rng(stable_hash("shape", category, int(index), int(seed)))
-    return _GENERATORS[category](rng).mesh()
+    make = _WIDER.get(category, _GENERATORS[category]) if generator >= 2 else _GENERATORS[category]
+    return make(rng).mesh()
 
 
 def split_of(category: str, index: int, seed: int = 0) -> str:
@@ -77,5 +90,5 @@ def split_of(category: str, index: int, seed: int = 0) -> str:
     return split_from_key(category, int(index), int(seed))
 
 
-__all__ = ["CATEGORIES", "SYNSETS", "SPLIT_FRACTIONS", "generate", "split_of", "split_from_key", "stable_hash",
+__all__ = ["CATEGORIES", "GENERATORS", "SYNSETS", "SPLIT_FRACTIONS", "generate", "split_of", "split_from_key", "stable_hash",
            "check_category"]

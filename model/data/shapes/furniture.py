@@ -34,6 +34,16 @@ def _star_base(a: Assembly, rng, y_top: float, radius: float, t: float, n: int, 
             a.add(frustum(tip - [0, 0.04, 0], tip, t * 0.3, t * 0.3, k=8))
 
 
+def _seat(a: Assembly, rng, w: float, d: float, h: float, ts: float, z: float = 0.0) -> None:
+    """A w x d seat of thickness ts whose top is at height h: a slab, or rounded (40%)."""
+    if rng.random() < 0.4:
+        v, f = loft([np.c_[rounded_rect(w, d, rng.uniform(0.02, 0.12)), np.full(16, y)][:, [0, 2, 1]]
+                     for y in (h - ts, h)])
+        a.add((v + [0, 0, z], f))
+    else:
+        a.add(box([0, h - ts / 2, z], [w, ts, d]))
+
+
 def chair(rng: np.random.Generator) -> Assembly:
     """Chair: seat, back (solid/slats/frame), legs (4/pedestal/sled), optional arms."""
     a = Assembly()
@@ -44,11 +54,7 @@ def chair(rng: np.random.Generator) -> Assembly:
     back_h = u(0.25, 0.65)
     tilt = u(-2, 18)
     leg_t = u(0.025, 0.06)
-    if rng.random() < 0.4:
-        v, f = loft([np.c_[rounded_rect(w, d, u(0.02, 0.12)), np.full(16, y)][:, [0, 2, 1]] for y in (h - ts, h)])
-        a.add((v, f))
-    else:
-        a.add(box([0, h - ts / 2, 0], [w, ts, d]))
+    _seat(a, rng, w, d, h, ts)
     # Back, rotated about the seat's rear edge.
     pivot = np.array([0, h, -d / 2 + 0.02])
     R = rot_x(-tilt)
@@ -307,4 +313,121 @@ def cabinet(rng: np.random.Generator) -> Assembly:
     return a
 
 
-__all__ = ["bench", "cabinet", "chair", "sofa", "table"]
+CHAIR_KINDS = {"folding": 0.1, "panel": 0.1, "cantilever": 0.1, "club": 0.1}
+"""The second generator's chair sub-types and their shares (the rest: :func:`chair`'s)."""
+
+
+def chair_wider(rng: np.random.Generator) -> Assembly:
+    """Chair of the second generator: :func:`chair`'s kinds, or (:data:`CHAIR_KINDS`) a folding
+    chair, a chair whose sides are slabs to the floor, a cantilever tube frame or an upholstered
+    club armchair -- the kinds real chairs showed the first generator lacking."""
+    x = rng.random()
+    for kind, share in CHAIR_KINDS.items():
+        if x < share:
+            return _CHAIR_KINDS[kind](rng)
+        x -= share
+    return chair(rng)
+
+
+def _folding_chair(rng: np.random.Generator) -> Assembly:
+    """Folding chair: thin seat on crossed tube legs, rear legs running up into the back posts,
+    a back panel between the posts' tops, stretchers at the feet."""
+    a = Assembly()
+    u = rng.uniform
+    w, d, h = u(0.38, 0.48), u(0.36, 0.46), u(0.4, 0.48)
+    back_h, lean, splay = u(0.3, 0.45), u(0.03, 0.1), u(0.04, 0.12)
+    r = u(0.008, 0.016)
+    ts = u(0.015, 0.04)
+    _seat(a, rng, w, d, h, ts)
+    x = w / 2 + r
+    rear = np.array([[x, 0.0, -d / 2 + 0.05 - splay], [x, h, -d / 2 + 0.02], [x, h + back_h, -d / 2 - lean]])
+    a.add(tube(rear, r, k=6), mirror_x=True)
+    a.add(tube(np.array([[x + 2 * r, 0.0, d / 2 + splay * 0.6], [x + 2 * r, h - ts, -d / 2 + 0.06]]), r, k=6),
+          mirror_x=True)
+    ph = back_h * u(0.25, 0.5)
+    top = (rear[1] + (rear[2] - rear[1]) * (1 - ph / back_h / 2 - u(0.0, 0.1))) * [0, 1, 1]
+    a.add(box(top, [2 * x, ph, u(0.01, 0.025)], rot_x(-np.degrees(np.arctan2(lean, back_h)))))
+    for z in (-d / 2 + 0.05 - splay, d / 2 + splay * 0.6):
+        a.add(tube(np.array([[-x, 0.02, z], [x, 0.02, z]]), r * 0.8, k=6))
+    return a
+
+
+def _panel_chair(rng: np.random.Generator) -> Assembly:
+    """Chair whose sides are slabs (to the floor, or on a front and a rear leg) or posts, the two
+    sides alike or not, often with arms on them; a seat between and a slab back, which may
+    reach down below the seat."""
+    a = Assembly()
+    u = rng.uniform
+    w, d, h = u(0.42, 0.62), u(0.42, 0.62), u(0.36, 0.48)
+    pt, ts = u(0.02, 0.06), u(0.03, 0.08)
+    arm_h = h + u(0.12, 0.28) if rng.random() < 0.7 else h - ts
+    gap = u(0.08, 0.25) if rng.random() < 0.4 else 0.0
+    sides = ["slab", "slab"] if rng.random() < 0.6 else list(rng.choice(["slab", "posts"], 2))
+    for sx, side in zip((-1, 1), sides):
+        x = sx * (w / 2 + pt / 2)
+        if side == "slab":
+            a.add(box([x, (gap + arm_h) / 2, 0], [pt, arm_h - gap, d]))
+            legs = [(gap / 2, gap)] if gap > 0 else []
+        else:
+            legs = [(arm_h / 2, arm_h)]
+            if arm_h > h:
+                a.add(box([x, h - ts - 0.03, 0], [pt, 0.04, d]))
+        for y, height in legs:
+            for z in (-1, 1):
+                a.add(box([x, y, z * (d / 2 - pt)], [pt, height, 2 * pt if height == gap else pt]))
+        if arm_h > h:
+            a.add(box([x, arm_h + 0.015, u(0.0, 0.06)], [pt * u(1.0, 2.5), 0.03, d * u(0.9, 1.15)]))
+    _seat(a, rng, w, d, h, ts)
+    tilt, back_h = u(0, 15), u(0.3, 0.6)
+    below = h * u(0.3, 1.0) if rng.random() < 0.35 else 0.0
+    pivot = np.array([0, h, -d / 2 + 0.02])
+    a.add(box(pivot + rot_x(-tilt) @ np.array([0, (back_h - below) / 2, 0]),
+              [w * u(0.6, 1.0), back_h + below, u(0.02, 0.05)], rot_x(-tilt)))
+    return a
+
+
+def _cantilever_chair(rng: np.random.Generator) -> Assembly:
+    """Cantilever chair: one bent tube per side (floor runner, front upright, under the seat to
+    the rear, up the back), seat and back as panels on the frame."""
+    a = Assembly()
+    u = rng.uniform
+    w, d, h = u(0.4, 0.5), u(0.4, 0.52), u(0.4, 0.48)
+    back_h, lean, r = u(0.3, 0.48), u(0.02, 0.12), u(0.009, 0.018)
+    ts = u(0.02, 0.06)
+    x = w / 2 - r
+    front = d / 2 - u(0.0, 0.06)
+    path = np.array([[x, r, -d / 2 + u(0.0, 0.1)], [x, r, front], [x, h - ts - r, front - u(0.06, 0.14)],
+                     [x, h - ts - r, -d / 2 + 0.03], [x, h + back_h, -d / 2 - lean]])
+    a.add(tube(path, r, k=6), mirror_x=True)
+    _seat(a, rng, w, d, h, ts)
+    bh = back_h * u(0.4, 0.8)
+    c = path[3] + (path[4] - path[3]) * (1 - bh / back_h / 2)
+    a.add(box([0, c[1], c[2] - 0.01], [w, bh, u(0.015, 0.035)], rot_x(-np.degrees(np.arctan2(lean, back_h)))))
+    return a
+
+
+def _club_chair(rng: np.random.Generator) -> Assembly:
+    """Upholstered armchair: a low box base, thick arms and back, a seat cushion, short feet."""
+    a = Assembly()
+    u = rng.uniform
+    w, d = u(0.65, 0.95), u(0.65, 0.9)
+    feet, base_h = u(0.0, 0.12), u(0.18, 0.3)
+    arm_w, arm_h = u(0.1, 0.22), u(0.15, 0.3)
+    bt, back_h = u(0.12, 0.22), u(0.3, 0.55)
+    a.add(box([0, feet + base_h / 2, 0], [w, base_h, d]))
+    a.add(box([0, feet + (base_h + back_h) / 2, -d / 2 + bt / 2], [w, base_h + back_h, bt], rot_x(-u(0, 10))))
+    for sx in (-1, 1):
+        a.add(box([sx * (w / 2 - arm_w / 2), feet + (base_h + arm_h) / 2, 0.0], [arm_w, base_h + arm_h, d]))
+    ch = u(0.06, 0.14)
+    a.add(box([0, feet + base_h + ch / 2, bt / 2], [w - 2 * arm_w, ch, d - bt]))
+    if feet > 0.02:
+        for sz in (-1, 1):
+            a.add(frustum([w / 2 - 0.06, 0, sz * (d / 2 - 0.06)], [w / 2 - 0.06, feet, sz * (d / 2 - 0.06)],
+                          0.02, 0.03, k=8), mirror_x=True)
+    return a
+
+
+_CHAIR_KINDS = {"folding": _folding_chair, "panel": _panel_chair, "cantilever": _cantilever_chair,
+                "club": _club_chair}
+
+__all__ = ["CHAIR_KINDS", "bench", "cabinet", "chair", "chair_wider", "sofa", "table"]
