@@ -46,3 +46,25 @@ def test_calibrated_copy_differs_only_in_split_biases_and_matches_counts(tiny_da
     for d, (logits, labels) in split_logits(model, cfg2, TASKS["autoencoder"].dataset(cfg2, "train", 0)).items():
         ratio = (logits.argmax(1) == SPLIT).sum() / max(1, (labels == SPLIT).sum())
         assert abs(ratio - report["depths"][str(d)]["predicted_over_true"]) < 1e-3   # reported to 4 decimals
+
+
+def test_keep_scan_takes_the_least_missing_part_among_settings_tied_on_chamfer():
+    from model.calibrate import choose_keep_scan
+
+    rng = np.random.default_rng(0)
+    shapes = [(c, f"{c}{i}") for c in ("chair", "lamp") for i in range(30)]
+    base = rng.uniform(0.2, 0.4, len(shapes))
+
+    def rows(chamfer_shift, missing):
+        return [{"category": c, "shape_id": s, "chamfer_x1e3": b + chamfer_shift + rng.normal(0, 0.05),
+                 "missing_x1e3": missing} for (c, s), b in zip(shapes, base)]
+
+    lowest = rows(0.0, 0.50)              # the lowest Chamfer, the most missing
+    level = rows(0.005, 0.40)             # level within the noise, less missing: chosen
+    worse = rows(0.2, 0.10)               # least missing, but clearly further from the truth
+    best, tied = choose_keep_scan([lowest, level, worse], draws=2000)
+    assert best == 1 and tied == [0, 1]
+    best, tied = choose_keep_scan([lowest, worse], draws=2000)
+    assert best == 0 and tied == [0]
+    none = [dict(r, missing_x1e3=None) for r in level]   # no shape with a missing part: Chamfer decides
+    assert choose_keep_scan([lowest, none], draws=2000)[0] == 0
