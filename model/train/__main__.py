@@ -147,7 +147,10 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    trainer.run()
+    try:
+        trainer.run()
+    finally:
+        trainer.close()
     return 0
 
 

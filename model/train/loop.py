@@ -113,7 +113,8 @@ class Trainer:
         self.cfg = cfg
         self.world = int(os.environ.get("WORLD_SIZE", "1"))
         self.rank = int(os.environ.get("RANK", "0"))
-        if self.world > 1 and not dist.is_initialized():
+        self._owns_group = self.world > 1 and not dist.is_initialized()
+        if self._owns_group:
             dist.init_process_group("gloo")
         if cfg.batch_size % self.world:
             raise ValueError(f"--batch-size {cfg.batch_size} must be a multiple of the {self.world} processes")
@@ -264,6 +265,15 @@ class Trainer:
         if self.rank == 0:
             with open(self.out / "metrics.jsonl", "a") as fh:
                 fh.write(json_text(row, indent=None) + "\n")
+
+    def close(self) -> None:
+        """End this process's part of a distributed run: wait for the others, then destroy the
+        process group this trainer started (a process that exits with it alive may abort in
+        gloo's teardown).  Nothing to do in one process; calling it twice is harmless."""
+        if self._owns_group and dist.is_initialized():
+            dist.barrier()
+            dist.destroy_process_group()
+        self._owns_group = False
 
     def run(self) -> dict:
         """Train to ``cfg.iters`` steps; returns (and on rank 0 prints) a one-line summary."""

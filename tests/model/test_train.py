@@ -80,6 +80,8 @@ loss = t.losses(t.train_set, t.batch_indices(0))["total"]
 loss.backward()
 if t.rank == 0:
     torch.save({{n: p.grad for n, p in t.model.named_parameters()}}, {str(tmp_path / 'ddp.pt')!r})
+t.close()
+assert not torch.distributed.is_initialized()
 """)
     env = dict(os.environ, MASTER_ADDR="127.0.0.1", MASTER_PORT=str(_free_port()), WORLD_SIZE="2")
     procs = [subprocess.Popen([sys.executable, str(script)], env=dict(env, RANK=str(r), LOCAL_RANK=str(r)))
