@@ -108,11 +108,11 @@ def draw_figure(path: Path, tiles, seed: int, side: int = 160) -> None:
     from PIL import Image
 
     from model.data.render import render
+    from model.preprocess import composite
 
     def picture(mesh):
         rgba, _ = render(mesh, 35.0, 25.0, 2.8, size=side, color=(0.55, 0.62, 0.75))
-        a = rgba[..., 3:4] / 255.0
-        return (rgba[..., :3] * a + 255 * (1 - a)).astype(np.uint8)
+        return composite(rgba, (255, 255, 255))
 
     rows = [np.concatenate([picture(mesh)] + [picture(generate(category, i, seed, v)) for v, i, _ in best], 1)
             for mesh, category, best in tiles]
