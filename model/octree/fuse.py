@@ -1,57 +1,187 @@
 """A completed shape fused with the scan it came from: what the scan saw keeps the scan's patches.
 
 A completion network fills what a scan misses, but re-draws what the scan saw at its own
-resolution and with its own errors.  :func:`keep_scan` takes the patches of the scan's adaptive
-octree wherever the scan has points and the network's patches only in the octants the scan left
-empty, and returns one octree of both, so the patches, the closed surface and every mesh format
-work on it unchanged.
+resolution and with its own errors.  :func:`keep_scan` takes the scan's patches wherever the scan
+saw the shape and the network's patches everywhere else, and returns one octree of both, so the
+patches, the closed surface and every mesh format work on it unchanged.
+
+Where one tree has a leaf and the other is split, the leaf is refined: it is cut into the eight
+children of its octant, each keeping the leaf's plane where the plane crosses it, until the two
+trees agree or the finest depth is reached.  So a network leaf the scan saw a corner of keeps its
+patch everywhere the scan has no points, and a coarse scan leaf (whose patch the scan covers: its
+fitting error is below the threshold) keeps the network's leaves away from its plane: the surfaces
+the scan did not see inside that octant.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from . import keys as morton
 from .neighbors import build_neighbors
-from .octree import EMPTY, LEAF, SPLIT, Octree, OctreeLevel
+from .octree import EMPTY, LEAF, PLANE_SCALE, SPLIT, Octree, OctreeLevel
+
+_CLAIMED = np.int8(3)
+"""A side's state in an octant its plane passes near but does not cross: no patch, but the other
+side's leaves there are dropped (they draw the same surface)."""
+
+
+@dataclass
+class _Side:
+    """One tree's state over a list of octants of one depth: ``kind`` EMPTY / SPLIT / LEAF /
+    _CLAIMED; ``row`` the octant's node in the tree's level (-1 for an octant inside a leaf of
+    the tree); ``normal`` (unit) and ``level`` (``normal . x``, cube units) the leaf's plane;
+    ``source`` the (depth, row) of the leaf the plane comes from, for its error."""
+
+    kind: np.ndarray
+    row: np.ndarray
+    normal: np.ndarray
+    level: np.ndarray
+    source: np.ndarray
+
+    def take(self, sel: np.ndarray) -> _Side:
+        return _Side(self.kind[sel], self.row[sel], self.normal[sel], self.level[sel], self.source[sel])
 
 
 def keep_scan(decoded: Octree, scan: Octree, neighbors: bool = False) -> Octree:
-    """The octree of ``decoded``'s leaves outside the scan's octants and ``scan``'s leaves.
+    """The octree of ``scan``'s patches where the scan saw the shape and ``decoded``'s elsewhere.
 
     Both are single-shape octrees in the same cube (the scan's frame: a completion model decodes
     there), with keys without batch bits.  ``scan`` may be deeper than ``decoded``: its non-empty
-    octants at ``decoded.depth`` then become leaves with their fitted planes.  An octant of the
-    decoded tree counts as observed when the scan has a non-empty octant at its place or a leaf
-    containing it; its patch is dropped.  The result keeps ``decoded``'s depth, full and adaptive
-    depths, threshold and frame (normalization); its leaves never nest (invariant of an octree).
+    octants at ``decoded.depth`` then count as leaves with their fitted planes.  An octant where
+    both trees have a leaf keeps the scan's; where one has a leaf and the other is split, the leaf
+    is refined (module docstring).  A decoded patch is dropped where the scan has points at its
+    octant or the scan's plane passes within the scan's threshold of it.  The result keeps
+    ``decoded``'s depth, full and adaptive depths, threshold and frame (normalization); its leaves
+    never nest (invariant of an octree) and every scan patch's surface is kept.
     """
     if decoded.batch_size != 1 or scan.batch_size != 1:
         raise ValueError("keep_scan takes single-shape octrees (split batches first)")
     if scan.depth < decoded.depth:
         raise ValueError(f"the scan's octree (depth {scan.depth}) is shallower than the output ({decoded.depth})")
     depth = decoded.depth
-    leaves = []                                           # per depth: (keys, source level, rows)
-    scan_leaf_keys = []
+    trees = (scan, decoded)
+    live = [_live(t, depth) for t in trees]
+    key = np.zeros(1, np.uint64)
+    sides = [_node_side(t.levels[0], np.zeros(1, np.int64), live[i][0], last=depth == 0)
+             for i, t in enumerate(trees)]
+    leaves = []
     for d in range(depth + 1):
-        s, o = scan.levels[d], decoded.levels[d]
-        mine = np.flatnonzero(s.label != EMPTY) if d == depth else np.flatnonzero(s.label == LEAF)
-        seen = s.key[s.label != EMPTY]
-        out = o.key[o.label == LEAF]
-        observed = np.isin(out, seen)
-        for e, above in enumerate(scan_leaf_keys):      # inside a coarser scan leaf
-            observed |= np.isin(morton.parent_keys(out, d - e), above)
-        theirs = np.flatnonzero(o.label == LEAF)[~observed]
-        leaves.append(((s, mine), (o, theirs)))
-        scan_leaf_keys.append(s.key[mine])
+        s, o = sides
+        emit_scan = ((s.kind == LEAF) & (o.kind != SPLIT)) if d < depth else s.kind == LEAF
+        emit_out = (o.kind == LEAF) & (s.kind == EMPTY)
+        leaves.append([_leaf_rows(trees[i], d, key[m], side.take(m))
+                       for i, (side, m) in enumerate(((s, emit_scan), (o, emit_out))) if m.any()])
+        if d == depth:
+            break
+        go = (o.kind == SPLIT) | (s.kind == SPLIT)
+        key = morton.child_keys(key[go])
+        sides = [_children(trees[i], d, side.take(go), key, live[i][d + 1], last=d + 1 == depth,
+                           tolerance=scan.threshold if i == 0 else None) for i, side in enumerate(sides)]
     return _from_leaves(decoded, leaves, neighbors)
 
 
+def _live(tree: Octree, depth: int) -> list[np.ndarray]:
+    """Per level up to ``depth``: whether each node holds a patch, its own (a leaf, or any
+    non-empty node at ``depth``) or a descendant's."""
+    live = [None] * (depth + 1)
+    live[depth] = tree.levels[depth].label != EMPTY
+    for d in range(depth - 1, -1, -1):
+        lv = tree.levels[d]
+        split = lv.child >= 0
+        below = np.zeros(len(lv), bool)
+        below[split] = live[d + 1].reshape(-1, 8).any(1)[lv.child[split]]
+        live[d] = (lv.label == LEAF) | below
+    return live
+
+
+def _node_side(level: OctreeLevel, rows: np.ndarray, live: np.ndarray, last: bool) -> _Side:
+    """The state of a tree's own nodes ``rows`` of ``level`` (``live``: per node of the level,
+    whether it holds a patch; at the output's last depth every non-empty node is a leaf)."""
+    kind = level.label[rows].copy()
+    kind[~live[rows]] = EMPTY
+    if last:
+        kind[kind != EMPTY] = LEAF
+    normal = np.zeros((len(rows), 3))
+    plane_level = np.zeros(len(rows))
+    leaf = kind == LEAF                                   # only a leaf's plane is passed on
+    if leaf.any():
+        at = rows[leaf]
+        n = level.plane[at, :3].astype(np.float64)
+        normal[leaf] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        centre = (morton.decode(level.key[at])[0] + 0.5) * level.size
+        plane_level[leaf] = (normal[leaf] * centre).sum(1) - level.plane_offsets()[at]
+    source = np.stack([np.full(len(rows), level.depth), rows], 1)
+    return _Side(kind, rows.astype(np.int64), normal, plane_level, source)
+
+
+def _children(tree: Octree, depth: int, side: _Side, child_key: np.ndarray, live: np.ndarray,
+              last: bool, tolerance: float | None) -> _Side:
+    """The states of the eight children (``child_key``, 8 per octant in order) of ``side``'s
+    octants at ``depth``: a split node's children are its nodes (``live`` as :func:`_live`'s for
+    the children's depth; all non-empty ones leaves when
+    ``last``); a leaf's (or claimed) plane passes to the children it crosses as a leaf, to those
+    within ``tolerance`` of it (None: none) as claimed."""
+    n = len(side.kind)
+    up = np.repeat(np.arange(n), 8)
+    lv = tree.levels[depth]
+    nodes = side.kind[up] == SPLIT
+    rows = np.full(8 * n, -1, np.int64)
+    rows[nodes] = lv.child[side.row[up[nodes]]].astype(np.int64) * 8 + np.tile(np.arange(8), n)[nodes]
+    out = _Side(np.full(8 * n, EMPTY, np.int8), np.full(8 * n, -1, np.int64), side.normal[up].copy(),
+                side.level[up].copy(), side.source[up].copy())
+    if nodes.any():
+        own = _node_side(tree.levels[depth + 1], rows[nodes], live, last=last)
+        for field in ("kind", "row", "normal", "level", "source"):
+            getattr(out, field)[nodes] = getattr(own, field)
+    planes = np.isin(side.kind[up], (LEAF, _CLAIMED))
+    if planes.any():
+        size = 1.0 / (1 << (depth + 1))
+        centre = (morton.decode(child_key[planes])[0] + 0.5) * size
+        gap = np.abs((out.normal[planes] * centre).sum(1) - out.level[planes])
+        reach = 0.5 * size * np.abs(out.normal[planes]).sum(1)
+        kind = np.where(gap <= reach, LEAF, EMPTY).astype(np.int8)
+        if tolerance is not None:
+            kind[(kind == EMPTY) & (gap <= reach + tolerance)] = _CLAIMED
+        kind[(kind == LEAF) & (side.kind[up][planes] == _CLAIMED)] = _CLAIMED
+        out.kind[planes] = kind
+    return out
+
+
+def _leaf_rows(tree: Octree, depth: int, key: np.ndarray, side: _Side):
+    """(keys, planes, errors, point counts) of leaves at ``depth`` from ``side``: a node's own
+    row as it is; a plane refined from a coarser leaf re-expressed for its octant, with the
+    error of the leaf it came from and no point count (not known per child)."""
+    lv = tree.levels[depth]
+    own = side.row >= 0
+    plane = np.zeros((len(key), 4), np.float32)
+    error = np.full(len(key), np.nan, np.float32)
+    npoints = np.zeros(len(key), np.int32)
+    rows = side.row[own]
+    plane[own], error[own], npoints[own] = lv.plane[rows], lv.error[rows], lv.npoints[rows]
+    inherited = np.flatnonzero(~own)
+    if len(inherited):
+        size = lv.size
+        centre = (morton.decode(key[inherited])[0] + 0.5) * size
+        normal = side.normal[inherited]
+        offset = (normal * centre).sum(1) - side.level[inherited]
+        plane[inherited, :3] = normal
+        plane[inherited, 3] = offset / (PLANE_SCALE * size)
+        for d in np.unique(side.source[inherited, 0]):
+            at = inherited[side.source[inherited, 0] == d]
+            error[at] = tree.levels[d].error[side.source[at, 1]]
+    return key, plane, error, npoints
+
+
 def _from_leaves(like: Octree, leaves, neighbors: bool) -> Octree:
-    """The octree whose leaves are the given rows of source levels (per depth, disjoint regions):
-    every ancestor of a leaf split (with all 8 children), everything else empty."""
+    """The octree whose leaves are, per depth, the given (keys, planes, errors, point counts) (the
+    keys of all depths cover disjoint regions): every ancestor of a leaf split (with all 8
+    children), everything else empty."""
     depth = like.depth
-    leaf_keys = [np.concatenate([lv.key[rows] for lv, rows in parts]) for parts in leaves]
+    parts = [[np.concatenate(c) for c in zip(*p)] if p else None for p in leaves]
+    leaf_keys = [p[0] if p else np.zeros(0, np.uint64) for p in parts]
     split_keys = [np.unique(np.concatenate([np.zeros(0, np.uint64)] + [
         morton.parent_keys(leaf_keys[e], e - d) for e in range(d + 1, depth + 1)])) for d in range(depth + 1)]
     levels: list[OctreeLevel] = []
@@ -63,12 +193,13 @@ def _from_leaves(like: Octree, leaves, neighbors: bool) -> Octree:
         plane = np.zeros((n, 4), np.float32)
         error = np.full(n, np.nan, np.float32)
         npoints = np.zeros(n, np.int32)
-        for lv, rows in leaves[d]:
-            at = morton.lookup(key, lv.key[rows])
+        if parts[d] is not None:
+            keys, planes, errors, counts = parts[d]
+            at = morton.lookup(key, keys)
             if np.any(at == n):
                 raise ValueError(f"depth {d}: leaves nest or lie outside the tree")
             label[at] = LEAF
-            plane[at], error[at], npoints[at] = lv.plane[rows], lv.error[rows], lv.npoints[rows]
+            plane[at], error[at], npoints[at] = planes, errors, counts
         split = np.isin(key, split_keys[d]) | (d < like.full_depth)
         if d == depth:
             split[:] = False

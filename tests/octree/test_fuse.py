@@ -4,13 +4,15 @@ import copy
 
 import numpy as np
 import pytest
+import trimesh
 
-from model.octree import EMPTY, LEAF, SPLIT, build_octree, scan_frame, scan_octree, validate
+from model.octree import EMPTY, LEAF, SPLIT, Normalization, build_octree, scan_frame, scan_octree, validate
 from model.octree import keys as morton
 from model.octree.batch import merge_octrees
 from model.octree.fuse import keep_scan
 from model.octree.metrics import chamfer_distance, mean_squared_distance, sample_patches
 from model.octree.neighbors import build_neighbors
+from model.octree.patches import patches_to_mesh
 
 from .conftest import sphere_points
 
@@ -46,19 +48,57 @@ def sphere_case():
     return pts, seen, frame, scan, whole
 
 
+def _leaf_plane(tree, depth, key):
+    """(normal, normal . x) in cube units of the leaf of ``tree`` at or above octant (depth, key), or None."""
+    for e in range(depth, -1, -1):
+        lv = tree.levels[e]
+        at = morton.lookup(lv.key, morton.parent_keys(np.array([key], np.uint64), depth - e))[0]
+        if at < len(lv) and lv.label[at] == LEAF:
+            n = lv.plane[at, :3].astype(np.float64)
+            n /= np.linalg.norm(n)
+            return n, float(n @ lv.centers()[at] - lv.plane_offsets()[at])
+    return None
+
+
+def _origins(fused, scan, whole):
+    """Per leaf of ``fused``: 'scan' or 'output', checked to carry that tree's plane (its own leaf
+    or the coarser leaf it was refined from)."""
+    out = []
+    for lv in fused.levels:
+        centres = lv.centers()
+        for i in np.flatnonzero(lv.label == LEAF):
+            n = lv.plane[i, :3].astype(np.float64)
+            n /= np.linalg.norm(n)
+            level = float(n @ centres[i] - lv.plane_offsets()[i])
+            found = [name for name, tree in (("scan", scan), ("output", whole))
+                     if (p := _leaf_plane(tree, lv.depth, int(lv.key[i]))) is not None
+                     and np.allclose(p[0], n, atol=1e-5) and abs(p[1] - level) < 1e-5]
+            assert found, f"leaf ({lv.depth}, {lv.key[i]}) carries neither tree's plane"
+            out.append(found[0])
+    return out
+
+
+def _area(tree):
+    return patches_to_mesh(tree, world=False).area
+
+
 def test_observed_octants_keep_the_scans_patches_and_the_rest_comes_from_the_output(sphere_case):
     pts, seen, frame, scan, whole = sphere_case
     fused = keep_scan(whole, scan)
     _check_structure(fused)
-    got, mine, theirs = _leaves(fused), _leaves(scan), _leaves(whole)
-    assert set(mine) <= set(got)                              # every scan leaf, with its own plane
-    assert all(got[k] == mine[k] for k in mine)
-    added = set(got) - set(mine)
-    assert added and added <= set(theirs)                     # the rest: output leaves, unchanged
-    assert all(got[k] == theirs[k] for k in added)
-    for d, k in added:                                        # ... none where the scan has points
-        lv = scan.levels[d]
-        assert k not in set(lv.key[lv.label != EMPTY].tolist())
+    origins = iter(_origins(fused, scan, whole))
+    only_scan = copy.deepcopy(fused)                          # the fused tree's leaves from the scan
+    outputs = 0
+    for lv, mine in zip(only_scan.levels, scan.levels):
+        seen_keys = set(mine.key[mine.label != EMPTY].tolist())
+        for i in np.flatnonzero(lv.label == LEAF):
+            if next(origins) == "output":
+                assert int(lv.key[i]) not in seen_keys        # no output patch where the scan has points
+                lv.label[i] = EMPTY
+                outputs += 1
+    assert outputs and fused.leaves_per_depth() != only_scan.leaves_per_depth()
+    assert _area(only_scan) == pytest.approx(_area(scan), rel=1e-6)   # the scan's surface, all of it
+    assert set(_leaves(scan)) & set(_leaves(fused))           # most scan leaves as they are, some refined
     assert fused.normalizations[0] is whole.normalizations[0]
     # the fused surface is the whole sphere: the unseen half is filled, the seen half is as good
     out = sample_patches(fused, 64)
@@ -95,6 +135,60 @@ def test_a_deeper_scan_is_cut_at_the_outputs_depth(sphere_case):
     got4 = {k: p for (d, k), p in _leaves(fused).items() if d == 4}
     assert {k: got4[k] for k in seen4} == seen4               # the scan's depth-4 octants became leaves
     assert {k: p for k, p in got4.items() if k not in seen4} == {k: p for k, p in theirs.items() if k not in seen4}
+
+
+def _box_points(extents, n=60_000, seed=0):
+    box = trimesh.creation.box(extents=extents)
+    pts, face = trimesh.sample.sample_surface_even(box, n, seed=seed)
+    return pts, box.face_normals[face]
+
+
+def test_an_output_leaf_the_scan_saw_a_corner_of_keeps_its_patch_elsewhere():
+    """A flat square decoded as coarse leaves, scanned only in a small disk: the leaves around the
+    disk are refined, not dropped, so the fused square has no hole."""
+    pts, nrm = _box_points((1.6, 1.6, 0.02))
+    top = nrm[:, 2] > 0.5
+    pts, nrm = pts[top], nrm[top]
+    frame = scan_frame(pts)
+    whole = build_octree(validate(pts, nrm), 6, normalization=frame)
+    assert whole.leaves_per_depth()[4] > 0                    # coarse leaves on the flat square
+    disk = np.linalg.norm(pts[:, :2] - [0.3, 0.3], axis=1) < 0.05
+    scan = build_octree(validate(pts[disk], nrm[disk]), 6, normalization=frame)
+    fused = keep_scan(whole, scan)
+    _check_structure(fused)
+    assert set(_origins(fused, scan, whole)) == {"scan", "output"}
+    assert _area(fused) == pytest.approx(_area(whole), rel=1e-4)      # the whole square, no hole
+    around = pts[~disk & (np.linalg.norm(pts[:, :2] - [0.3, 0.3], axis=1) < 0.15)]
+    assert mean_squared_distance(around, sample_patches(fused, 128)) < \
+        1.5 * mean_squared_distance(around, sample_patches(whole, 128))
+
+
+def test_a_coarse_scan_leaf_keeps_the_surfaces_it_did_not_see():
+    """A thin plate scanned from above: the scan's top face becomes coarse leaves, and the decoded
+    bottom face inside those octants is kept (the top face's decoded copy is not)."""
+    pts, nrm = _box_points((1.6, 1.6, 0.08))
+    frame = scan_frame(pts)          # moved so both faces lie in the same depth-4 octants
+    frame = Normalization(center=frame.center - [0, 0, 0.03 * frame.scale], scale=frame.scale)
+    assert len(np.unique(np.floor(frame.to_cube(pts)[:, 2] * 16))) == 1
+    whole = build_octree(validate(pts, nrm), 6, normalization=frame)
+    top, bottom = nrm[:, 2] > 0.5, nrm[:, 2] < -0.5
+    scan = build_octree(validate(pts[top], nrm[top]), 6, normalization=frame)
+    assert scan.leaves_per_depth()[4] > 0
+    fused = keep_scan(whole, scan)
+    _check_structure(fused)
+    origins = _origins(fused, scan, whole)
+    assert set(origins) == {"scan", "output"}
+    near = mean_squared_distance(pts[bottom], sample_patches(fused, 128))
+    assert near < 1.5 * mean_squared_distance(pts[bottom], sample_patches(whole, 128))
+    assert near < 0.02 * mean_squared_distance(pts[bottom], sample_patches(scan, 128))
+    upward = [o for o, lv_n in zip(origins, _leaf_normals(fused)) if lv_n[2] > 0.9]
+    assert upward and set(upward) == {"scan"}                 # the top face is the scan's alone
+    assert _area(fused) < 1.05 * _area(whole)
+
+
+def _leaf_normals(tree):
+    return [lv.plane[i, :3] / np.linalg.norm(lv.plane[i, :3]) for lv in tree.levels
+            for i in np.flatnonzero(lv.label == LEAF)]
 
 
 @pytest.mark.parametrize("bad", ["batched", "shallow"])
