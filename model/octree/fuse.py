@@ -120,10 +120,10 @@ def _node_side(level: OctreeLevel, rows: np.ndarray, live: np.ndarray, last: boo
 def _children(tree: Octree, depth: int, side: _Side, child_key: np.ndarray, live: np.ndarray,
               last: bool, tolerance: float | None) -> _Side:
     """The states of the eight children (``child_key``, 8 per octant in order) of ``side``'s
-    octants at ``depth``: a split node's children are its nodes (``live`` as :func:`_live`'s for
-    the children's depth; all non-empty ones leaves when
-    ``last``); a leaf's (or claimed) plane passes to the children it crosses as a leaf, to those
-    within ``tolerance`` of it (None: none) as claimed."""
+    octants at ``depth``: a split node's children are its nodes (``live``: :func:`_live`'s at the
+    children's depth; all non-empty ones are leaves when ``last``); a leaf's (or claimed) plane
+    passes to the children it crosses as a leaf, to those within ``tolerance`` of it (None: none)
+    as claimed."""
     n = len(side.kind)
     up = np.repeat(np.arange(n), 8)
     lv = tree.levels[depth]
