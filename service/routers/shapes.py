@@ -55,8 +55,8 @@ REMOVE_BACKGROUND_Q = Query("auto", description="auto: an image with transparenc
 FOREGROUND_RATIO_Q = Query(None, ge=0.3, le=1.0, description="the share of the encoder's square the object's longest "
                            "side fills (default the model's, GET /v1/models: foreground_ratio)")
 KEEP_SCAN_Q = Query(True, description="true: where the scan has points the output keeps the scan's own patches (its "
-                    "adaptive octree), and the network's patches fill only the octants the scan left empty; false: "
-                    "the network's output alone (it re-draws the scanned parts too, coarser)")
+                    "adaptive octree), and the network's patches fill everywhere the scan has none, down to the "
+                    "finest octants; false: the network's output alone (it re-draws the scanned parts too, coarser)")
 DEBUG_Q = Query(None, description="mask: answer with the mask the framing used (an 8-bit greyscale PNG of the "
                 "image's size, 255 = object) instead of the mesh; 422 no_mask when there is none")
 
