@@ -98,7 +98,8 @@ def test_observed_octants_keep_the_scans_patches_and_the_rest_comes_from_the_out
                 outputs += 1
     assert outputs and fused.leaves_per_depth() != only_scan.leaves_per_depth()
     assert _area(only_scan) == pytest.approx(_area(scan), rel=1e-6)   # the scan's surface, all of it
-    assert set(_leaves(scan)) & set(_leaves(fused))           # most scan leaves as they are, some refined
+    kept = set(_leaves(scan)) & set(_leaves(fused))           # most scan leaves as they are, a few refined
+    assert len(kept) > 0.9 * len(_leaves(scan))
     assert fused.normalizations[0] is whole.normalizations[0]
     # the fused surface is the whole sphere: the unseen half is filled, the seen half is as good
     out = sample_patches(fused, 64)
