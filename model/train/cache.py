@@ -44,16 +44,34 @@ def cached_arrays(path: Path, sha: str, build: Callable[[], dict[str, np.ndarray
     return arrays
 
 
-def _one(job) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    data_dir, row, cache, derive, keep = job
+def _one(job) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray] | None]:
+    data_dir, row, cache, derive, keep, derived = job
+    path = Path(cache) / row["path"]
+    if not derived and path.is_file():                  # only the record's arrays: read just those
+        with np.load(Path(data_dir) / row["path"]) as rec:
+            return {k: rec[k] for k in keep}, None
     rec = load_record(Path(data_dir) / row["path"])
-    arrays = cached_arrays(Path(cache) / row["path"], row["sha256"], lambda: derive(rec))
-    return {k: rec[k] for k in keep}, arrays
+    arrays = cached_arrays(path, row["sha256"], lambda: derive(rec))
+    return {k: rec[k] for k in keep}, arrays if derived else None
 
 
 def load_derived(data_dir: str | Path, rows: list[dict], cache: Path,
                  derive: Callable[[ShapeRecord], dict[str, np.ndarray]], keep: tuple[str, ...],
-                 workers: int = 1) -> list[tuple[dict[str, np.ndarray], dict[str, np.ndarray]]]:
-    """Per manifest row: (the record arrays named in ``keep``, its derived arrays).  ``derive``
-    must be a module-level function (or partial of one) when ``workers`` > 1."""
-    return process_map(_one, [(str(data_dir), r, str(cache), derive, keep) for r in rows], workers)
+                 workers: int = 1, derived: bool = True
+                 ) -> list[tuple[dict[str, np.ndarray], dict[str, np.ndarray] | None]]:
+    """Per manifest row: (the record arrays named in ``keep``, its derived arrays; None with
+    ``derived=False``, which only makes sure the cache holds them).  ``derive`` must be a
+    module-level function (or partial of one) when ``workers`` > 1."""
+    return process_map(_one, [(str(data_dir), r, str(cache), derive, keep, derived) for r in rows], workers)
+
+
+def derived_arrays(data_dir: str | Path, row: dict, cache: Path, keep: tuple[str, ...]
+                   ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """One row's (record arrays named in ``keep``, derived arrays), read from the dataset and the
+    cache that :func:`load_derived` filled (a record streamed when its split is needed)."""
+    with np.load(Path(data_dir) / row["path"]) as rec:
+        kept = {k: rec[k] for k in keep}
+    with np.load(Path(cache) / row["path"]) as f:
+        if str(f["record_sha256"]) != row["sha256"]:
+            raise ValueError(f"{Path(cache) / row['path']} was derived from another version of its record")
+        return kept, {k: f[k] for k in f.files}

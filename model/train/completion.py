@@ -10,6 +10,7 @@ beside the dataset (:mod:`model.train.cache`).
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,7 +20,7 @@ from ..octree import Octree, build_octree, scan_frame, scan_octree, validate
 from ..octree.batch import merge_octrees
 from ..octree.pointcloud import normalization_of
 from ..octree.serialize import octree_from_arrays, octree_to_arrays
-from .cache import cache_dir, load_derived
+from .cache import cache_dir, derived_arrays, load_derived
 from .data import Sample, manifest_rows
 
 CACHE_VERSION = 1
@@ -53,46 +54,68 @@ def record_octrees(record, depth: int, kind: str) -> dict[str, np.ndarray]:
 
 
 class CompletionSet:
-    """The completion samples of one split, in memory.  ``samples[i]`` is the evaluation view
-    (scan 0, ``normals`` mode): its octree is the target, its points the truth in the complete
-    shape's own cube (``truth_frame``), its ``partial`` the input points there."""
+    """The completion samples of one split.  ``samples[i]`` is the evaluation view (scan 0,
+    ``normals`` mode): its octree is the target, its points the truth in the complete shape's own
+    cube (``truth_frame``), its ``partial`` the input points there; ``variants[i]`` every scan of
+    shape ``i``.  Held in memory, or with ``stream`` read from the dataset and its cache each time
+    a shape is asked for (the last ``stream`` shapes kept), for splits larger than memory: the
+    same samples, the same batches."""
 
     def __init__(self, data_dir: str | Path, split: str, kind: str = "adaptive", points: int = 2048,
                  depth: int | None = None, limit: int | None = None, seed: int = 0,
-                 categories: tuple[str, ...] | None = None, normals: str = "given", workers: int = 1):
+                 categories: tuple[str, ...] | None = None, normals: str = "given", workers: int = 1,
+                 stream: int = 0):
         if kind not in KINDS:
             raise ValueError(f"kind must be one of {', '.join(KINDS)}")
         if normals not in NORMALS:
             raise ValueError(f"normals must be one of {', '.join(NORMALS)}")
+        if isinstance(stream, bool) or not isinstance(stream, int) or stream < 0:
+            raise ValueError(f"stream must be 0 (the whole split in memory) or a number of shapes, not {stream!r}")
         data_dir = Path(data_dir)
         manifest, rows = manifest_rows(data_dir, split, depth, categories, limit)
         if manifest["config"].get("partial_scans", 0) < 1:
             raise ValueError(f"{data_dir} has no partial scans; rebuild with --partial-scans 2")
         built = manifest["config"]["depth"]
         cache = cache_dir(data_dir, f"completion-{kind}", {"v": CACHE_VERSION, "depth": built, "kind": kind})
+        keep = ("points", "partial_points", "partial_offsets")
         loaded = load_derived(data_dir, rows, cache, functools.partial(record_octrees, depth=built, kind=kind),
-                              ("points", "partial_points", "partial_offsets"), workers)
+                              ("points",) if stream else keep, workers, derived=not stream)
         rng = np.random.default_rng(seed)
-        self.samples: list[Sample] = []
-        self.variants: list[list[Variant]] = []
         self.normals = normals
-        for r, (rec, arrays) in zip(rows, loaded):
+        self._frames, self._points = [], []          # per shape: the truth's cube and its picked points
+        for rec, _ in loaded:
             truth = normalization_of(rec["points"])
-            variants = []
-            off = rec["partial_offsets"]
-            for j in range(int(arrays["scans"])):
-                inputs = {m: octree_from_arrays(arrays, prefix=f"s{j}_{m}_", neighbors=False) for m in NORMALS}
-                target = octree_from_arrays(arrays, prefix=f"s{j}_target_", neighbors=False)
-                partial = truth.to_cube(rec["partial_points"][off[j]:off[j + 1]]).astype(np.float32)
-                variants.append(Variant(inputs, target, partial))
             cube = truth.to_cube(rec["points"])
             pick = rng.choice(len(cube), size=points, replace=len(cube) < points)
-            first = variants[0]
-            self.samples.append(Sample(r["category"], r["shape_id"], first.target, cube[pick].astype(np.float32),
-                                       truth_frame=truth, partial=first.partial))
-            self.variants.append(variants)
-        self.depth = self.samples[0].octree.depth
+            self._frames.append(truth)
+            self._points.append(cube[pick].astype(np.float32))
+        self._rows = [(r["category"], r["shape_id"]) for r in rows]
+        if stream:
+            read = functools.lru_cache(maxsize=stream)(
+                lambda i: self._shape(i, *derived_arrays(data_dir, rows[i], cache, keep)))
+            self.samples = _Lazy(len(rows), lambda i: read(i)[0])
+            self.variants = _Lazy(len(rows), lambda i: read(i)[1])
+        else:
+            shapes = [self._shape(i, rec, arrays) for i, (rec, arrays) in enumerate(loaded)]
+            self.samples: list[Sample] = [s for s, _ in shapes]
+            self.variants: list[list[Variant]] = [v for _, v in shapes]
+        self.depth = built
         self.latents = None
+
+    def _shape(self, i: int, rec: dict, arrays: dict) -> tuple[Sample, list[Variant]]:
+        """Shape ``i``'s evaluation view and variants from its record's and cache's arrays."""
+        truth = self._frames[i]
+        variants = []
+        off = rec["partial_offsets"]
+        for j in range(int(arrays["scans"])):
+            inputs = {m: octree_from_arrays(arrays, prefix=f"s{j}_{m}_", neighbors=False) for m in NORMALS}
+            target = octree_from_arrays(arrays, prefix=f"s{j}_target_", neighbors=False)
+            partial = truth.to_cube(rec["partial_points"][off[j]:off[j + 1]]).astype(np.float32)
+            variants.append(Variant(inputs, target, partial))
+        first = variants[0]
+        category, shape_id = self._rows[i]
+        return Sample(category, shape_id, first.target, self._points[i], truth_frame=truth,
+                      partial=first.partial), variants
 
     def __len__(self) -> int:
         return len(self.samples)
@@ -119,6 +142,23 @@ class CompletionSet:
         """The merged target octree of the evaluation view and the truth points (B, P, 3)."""
         _, target = self.pairs(indices)
         return target, np.stack([self.samples[i].points for i in indices])
+
+
+class _Lazy(Sequence):
+    """A read-only sequence of ``n`` items made by ``item(i)`` when asked for."""
+
+    def __init__(self, n: int, item):
+        self._n, self._item = n, item
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self._item(k) for k in range(*i.indices(self._n))]
+        if not -self._n <= i < self._n:
+            raise IndexError(i)
+        return self._item(i % self._n)
 
 
 def truth_view(sample: Sample, cube_points: np.ndarray) -> np.ndarray:

@@ -199,7 +199,7 @@ class CompletionTask(AutoencoderTask):
         from .completion import CompletionSet
         return CompletionSet(cfg.data, split, ARCHS[cfg.arch].octree, points=points, depth=cfg.depth,
                              limit=limit, seed=seed, categories=cfg.categories, normals=normals,
-                             workers=cfg.workers)
+                             workers=cfg.workers, stream=cfg.stream)
 
     def inputs(self, cfg, dataset, indices, rng):
         source, target = dataset.pairs(indices, rng)

@@ -130,6 +130,26 @@ def test_completion_cache_is_rebuilt_when_stale_or_damaged(scan_data):
         assert str(f["record_sha256"]) != ""
 
 
+def test_a_streamed_completion_set_gives_the_same_samples_and_batches(scan_data):
+    from model.train.completion import CompletionSet
+
+    held = CompletionSet(scan_data, "train", points=64)
+    streamed = CompletionSet(scan_data, "train", points=64, stream=2)
+    assert len(streamed) == len(held) >= 3 and streamed.depth == held.depth
+    assert isinstance(held.samples, list) and not isinstance(streamed.samples, list)
+    for a, b in zip(held.samples, streamed.samples):
+        assert (a.category, a.shape_id) == (b.category, b.shape_id)
+        assert np.array_equal(a.points, b.points) and np.array_equal(a.partial, b.partial)
+        assert _same_octree(a.octree, b.octree) and a.truth_frame.scale == b.truth_frame.scale
+    order = [2, 0, 1, 2]
+    x, y = held.pairs(order, np.random.default_rng(5)), streamed.pairs(order, np.random.default_rng(5))
+    assert all(_same_octree(a, b) for a, b in zip(x, y))
+    assert _same_octree(held.scan(1), streamed.scan(1))
+    assert streamed.samples[-1].shape_id == held.samples[-1].shape_id and len(streamed.samples[:2]) == 2
+    with pytest.raises(IndexError):
+        streamed.samples[len(held)]
+
+
 def test_classify_trains_on_rotations_resumes_and_votes(tiny_data, tmp_path, capsys):
     from model.evaluate import main as evaluate_main
     from model.train.classify import ROTATIONS
