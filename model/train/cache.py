@@ -11,7 +11,7 @@ import hashlib
 import io
 import json
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -44,25 +44,31 @@ def cached_arrays(path: Path, sha: str, build: Callable[[], dict[str, np.ndarray
     return arrays
 
 
-def _one(job) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray] | None]:
-    data_dir, row, cache, derive, keep, derived = job
+def _one(job) -> tuple[Any, dict[str, np.ndarray] | None]:
+    data_dir, row, cache, derive, keep, derived, reduce = job
     path = Path(cache) / row["path"]
     if not derived and path.is_file():                  # only the record's arrays: read just those
         with np.load(Path(data_dir) / row["path"]) as rec:
-            return {k: rec[k] for k in keep}, None
+            return reduce({k: rec[k] for k in keep}), None
     rec = load_record(Path(data_dir) / row["path"])
     arrays = cached_arrays(path, row["sha256"], lambda: derive(rec))
-    return {k: rec[k] for k in keep}, arrays if derived else None
+    return reduce({k: rec[k] for k in keep}), arrays if derived else None
+
+
+def _as_is(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    return arrays
 
 
 def load_derived(data_dir: str | Path, rows: list[dict], cache: Path,
                  derive: Callable[[ShapeRecord], dict[str, np.ndarray]], keep: tuple[str, ...],
-                 workers: int = 1, derived: bool = True
-                 ) -> list[tuple[dict[str, np.ndarray], dict[str, np.ndarray] | None]]:
-    """Per manifest row: (the record arrays named in ``keep``, its derived arrays; None with
-    ``derived=False``, which only makes sure the cache holds them).  ``derive`` must be a
-    module-level function (or partial of one) when ``workers`` > 1."""
-    return process_map(_one, [(str(data_dir), r, str(cache), derive, keep, derived) for r in rows], workers)
+                 workers: int = 1, derived: bool = True,
+                 reduce: Callable[[dict[str, np.ndarray]], Any] = _as_is) -> list[tuple[Any, dict[str, np.ndarray] | None]]:
+    """Per manifest row: (``reduce`` of the record arrays named in ``keep``: by default those
+    arrays; its derived arrays, or None with ``derived=False``, which only makes sure the cache
+    holds them).  ``derive`` and ``reduce`` must be module-level functions (or partials of them)
+    when ``workers`` > 1; ``reduce`` runs in the worker, so only what it returns is held."""
+    return process_map(_one, [(str(data_dir), r, str(cache), derive, keep, derived, reduce) for r in rows],
+                       workers)
 
 
 def derived_arrays(data_dir: str | Path, row: dict, cache: Path, keep: tuple[str, ...]

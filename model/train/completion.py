@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..octree import Octree, build_octree, scan_frame, scan_octree, validate
+from ..octree import Normalization, Octree, build_octree, scan_frame, scan_octree, validate
 from ..octree.batch import merge_octrees
 from ..octree.pointcloud import normalization_of
 from ..octree.serialize import octree_from_arrays, octree_to_arrays
@@ -79,16 +79,13 @@ class CompletionSet:
         cache = cache_dir(data_dir, f"completion-{kind}", {"v": CACHE_VERSION, "depth": built, "kind": kind})
         keep = ("points", "partial_points", "partial_offsets")
         loaded = load_derived(data_dir, rows, cache, functools.partial(record_octrees, depth=built, kind=kind),
-                              ("points",) if stream else keep, workers, derived=not stream)
+                              keep, workers, derived=not stream, reduce=_truth_summary if stream else _with_summary)
         rng = np.random.default_rng(seed)
         self.normals = normals
-        self._frames, self._points = [], []          # per shape: the truth's cube and its picked points
-        for rec, _ in loaded:
-            truth = normalization_of(rec["points"])
-            cube = truth.to_cube(rec["points"])
-            pick = rng.choice(len(cube), size=points, replace=len(cube) < points)
-            self._frames.append(truth)
-            self._points.append(cube[pick].astype(np.float32))
+        self._frames, self._picks = [], []           # per shape: the truth's cube and its picked points
+        for (frame, count, _), _ in loaded:
+            self._frames.append(frame)
+            self._picks.append(rng.choice(count, size=points, replace=count < points))
         self._rows = [(r["category"], r["shape_id"]) for r in rows]
         if stream:
             read = functools.lru_cache(maxsize=stream)(
@@ -96,7 +93,7 @@ class CompletionSet:
             self.samples = _Lazy(len(rows), lambda i: read(i)[0])
             self.variants = _Lazy(len(rows), lambda i: read(i)[1])
         else:
-            shapes = [self._shape(i, rec, arrays) for i, (rec, arrays) in enumerate(loaded)]
+            shapes = [self._shape(i, rec, arrays) for i, ((_, _, rec), arrays) in enumerate(loaded)]
             self.samples: list[Sample] = [s for s, _ in shapes]
             self.variants: list[list[Variant]] = [v for _, v in shapes]
         self.depth = built
@@ -114,8 +111,8 @@ class CompletionSet:
             variants.append(Variant(inputs, target, partial))
         first = variants[0]
         category, shape_id = self._rows[i]
-        return Sample(category, shape_id, first.target, self._points[i], truth_frame=truth,
-                      partial=first.partial), variants
+        cube = truth.to_cube(rec["points"][self._picks[i]]).astype(np.float32)
+        return Sample(category, shape_id, first.target, cube, truth_frame=truth, partial=first.partial), variants
 
     def __len__(self) -> int:
         return len(self.samples)
@@ -142,6 +139,16 @@ class CompletionSet:
         """The merged target octree of the evaluation view and the truth points (B, P, 3)."""
         _, target = self.pairs(indices)
         return target, np.stack([self.samples[i].points for i in indices])
+
+
+def _truth_summary(rec: dict) -> tuple[Normalization, int, None]:
+    """What a streamed set holds of a record: its truth's cube and its number of points."""
+    return normalization_of(rec["points"]), len(rec["points"]), None
+
+
+def _with_summary(rec: dict) -> tuple[Normalization, int, dict]:
+    """What a set held in memory keeps of a record: the summary and the arrays themselves."""
+    return normalization_of(rec["points"]), len(rec["points"]), rec
 
 
 class _Lazy(Sequence):
