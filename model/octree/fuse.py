@@ -83,6 +83,11 @@ def keep_scan(decoded: Octree, scan: Octree, neighbors: bool = False) -> Octree:
     return _from_leaves(decoded, leaves, neighbors)
 
 
+def _centres(keys: np.ndarray, size: float) -> np.ndarray:
+    """Centres (N, 3) of the octants ``keys`` of edge ``size`` (``OctreeLevel.centers`` for a subset)."""
+    return (morton.decode(keys)[0] + 0.5) * size
+
+
 def _live(tree: Octree, depth: int) -> list[np.ndarray]:
     """Per level up to ``depth``: whether each node holds a patch, its own (a leaf, or any
     non-empty node at ``depth``) or a descendant's."""
@@ -111,7 +116,7 @@ def _node_side(level: OctreeLevel, rows: np.ndarray, live: np.ndarray, last: boo
         at = rows[leaf]
         n = level.plane[at, :3].astype(np.float64)
         normal[leaf] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-        centre = (morton.decode(level.key[at])[0] + 0.5) * level.size
+        centre = _centres(level.key[at], level.size)
         plane_level[leaf] = (normal[leaf] * centre).sum(1) - level.plane_offsets()[at]
     source = np.stack([np.full(len(rows), level.depth), rows], 1)
     return _Side(kind, rows.astype(np.int64), normal, plane_level, source)
@@ -139,7 +144,7 @@ def _children(tree: Octree, depth: int, side: _Side, child_key: np.ndarray, live
     planes = np.isin(side.kind[up], (LEAF, _CLAIMED))
     if planes.any():
         size = 1.0 / (1 << (depth + 1))
-        centre = (morton.decode(child_key[planes])[0] + 0.5) * size
+        centre = _centres(child_key[planes], size)
         gap = np.abs((out.normal[planes] * centre).sum(1) - out.level[planes])
         reach = 0.5 * size * np.abs(out.normal[planes]).sum(1)
         kind = np.where(gap <= reach, LEAF, EMPTY).astype(np.int8)
@@ -164,7 +169,7 @@ def _leaf_rows(tree: Octree, depth: int, key: np.ndarray, side: _Side):
     inherited = np.flatnonzero(~own)
     if len(inherited):
         size = lv.size
-        centre = (morton.decode(key[inherited])[0] + 0.5) * size
+        centre = _centres(key[inherited], size)
         normal = side.normal[inherited]
         offset = (normal * centre).sum(1) - side.level[inherited]
         plane[inherited, :3] = normal

@@ -44,15 +44,26 @@ def cached_arrays(path: Path, sha: str, build: Callable[[], dict[str, np.ndarray
     return arrays
 
 
+def derived_arrays(data_dir: str | Path, row: dict, cache: str | Path,
+                   derive: Callable[[ShapeRecord], dict[str, np.ndarray]], keep: tuple[str, ...],
+                   derived: bool = True) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray] | None]:
+    """One row's (record arrays named in ``keep``, derived arrays): only those arrays are read
+    from the record, and the whole record only when the cache must be (re)built.  With
+    ``derived=False`` the derived arrays are not read when the cache has them (None)."""
+    record = Path(data_dir) / row["path"]
+    with np.load(record) as rec:
+        kept = {k: rec[k] for k in keep}
+    path = Path(cache) / row["path"]
+    if not derived and path.is_file():
+        return kept, None
+    arrays = cached_arrays(path, row["sha256"], lambda: derive(load_record(record)))
+    return kept, arrays if derived else None
+
+
 def _one(job) -> tuple[Any, dict[str, np.ndarray] | None]:
     data_dir, row, cache, derive, keep, derived, reduce = job
-    path = Path(cache) / row["path"]
-    if not derived and path.is_file():                  # only the record's arrays: read just those
-        with np.load(Path(data_dir) / row["path"]) as rec:
-            return reduce({k: rec[k] for k in keep}), None
-    rec = load_record(Path(data_dir) / row["path"])
-    arrays = cached_arrays(path, row["sha256"], lambda: derive(rec))
-    return reduce({k: rec[k] for k in keep}), arrays if derived else None
+    kept, arrays = derived_arrays(data_dir, row, cache, derive, keep, derived)
+    return reduce(kept), arrays
 
 
 def _as_is(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -65,19 +76,8 @@ def load_derived(data_dir: str | Path, rows: list[dict], cache: Path,
                  reduce: Callable[[dict[str, np.ndarray]], Any] = _as_is) -> list[tuple[Any, dict[str, np.ndarray] | None]]:
     """Per manifest row: (``reduce`` of the record arrays named in ``keep``: by default those
     arrays; its derived arrays, or None with ``derived=False``, which only makes sure the cache
-    holds them).  ``derive`` and ``reduce`` must be module-level functions (or partials of them)
-    when ``workers`` > 1; ``reduce`` runs in the worker, so only what it returns is held."""
+    holds them: :func:`derived_arrays` reads a row again when it is needed).  ``derive`` and
+    ``reduce`` must be module-level functions (or partials of them) when ``workers`` > 1;
+    ``reduce`` runs in the worker, so only what it returns is held."""
     return process_map(_one, [(str(data_dir), r, str(cache), derive, keep, derived, reduce) for r in rows],
                        workers)
-
-
-def derived_arrays(data_dir: str | Path, row: dict, cache: Path, keep: tuple[str, ...]
-                   ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """One row's (record arrays named in ``keep``, derived arrays), read from the dataset and the
-    cache that :func:`load_derived` filled (a record streamed when its split is needed)."""
-    with np.load(Path(data_dir) / row["path"]) as rec:
-        kept = {k: rec[k] for k in keep}
-    with np.load(Path(cache) / row["path"]) as f:
-        if str(f["record_sha256"]) != row["sha256"]:
-            raise ValueError(f"{Path(cache) / row['path']} was derived from another version of its record")
-        return kept, {k: f[k] for k in f.files}

@@ -78,8 +78,9 @@ class CompletionSet:
         built = manifest["config"]["depth"]
         cache = cache_dir(data_dir, f"completion-{kind}", {"v": CACHE_VERSION, "depth": built, "kind": kind})
         keep = ("points", "partial_points", "partial_offsets")
-        loaded = load_derived(data_dir, rows, cache, functools.partial(record_octrees, depth=built, kind=kind),
-                              keep, workers, derived=not stream, reduce=_truth_summary if stream else _with_summary)
+        derive = functools.partial(record_octrees, depth=built, kind=kind)
+        loaded = load_derived(data_dir, rows, cache, derive, ("points",) if stream else keep, workers,
+                              derived=not stream, reduce=_truth_summary if stream else _with_summary)
         rng = np.random.default_rng(seed)
         self.normals = normals
         self._frames, self._picks = [], []           # per shape: the truth's cube and its picked points
@@ -89,7 +90,7 @@ class CompletionSet:
         self._rows = [(r["category"], r["shape_id"]) for r in rows]
         if stream:
             read = functools.lru_cache(maxsize=stream)(
-                lambda i: self._shape(i, *derived_arrays(data_dir, rows[i], cache, keep)))
+                lambda i: self._shape(i, *derived_arrays(data_dir, rows[i], cache, derive, keep)))
             self.samples = _Lazy(len(rows), lambda i: read(i)[0])
             self.variants = _Lazy(len(rows), lambda i: read(i)[1])
         else:
