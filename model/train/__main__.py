@@ -77,6 +77,14 @@ def common_options() -> argparse.ArgumentParser:
     return c
 
 
+def add_stream(parser: argparse.ArgumentParser) -> None:
+    """The --stream option of the tasks whose splits can be read as batches need them."""
+    parser.add_argument("--stream", type=int, default=0, metavar="N",
+                        help="read each split's records from the dataset (and its cache) as batches need them, "
+                             "keeping the last N shapes in memory, instead of holding the whole split (for "
+                             "datasets larger than memory; the same batches; default 0: the whole split)")
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = command_parser("python -m model.train", __doc__, [
         "python -m model.train autoencoder --data data/procedural --depth 6 --arch aocnn --out runs/aocnn --iters 4000",
@@ -127,10 +135,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     c.add_argument("--skips", action="store_true",
                    help="output-guided skip connections: each decoded octant also reads the encoder's "
                         "features of the scan's octant with the same key (Wang, Liu, Tong, CVPRW 2020)")
-    c.add_argument("--stream", type=int, default=0, metavar="N",
-                   help="read each split's records from the dataset and its cache as batches need them, "
-                        "keeping the last N shapes in memory, instead of holding the whole split (for "
-                        "datasets larger than memory; the same batches; default 0: the whole split)")
+    for parser in (a, i, f, c):
+        add_stream(parser)
     k = sub.add_parser("classify", parents=[common], help="train shape classification (paper section 5.1)")
     k.add_argument("--arch", choices=sorted(CLASSIFIER_ARCHS), default="aocnn",
                    help="aocnn (default): Adaptive O-CNN on the adaptive octree; ocnn: O-CNN on the full octree")

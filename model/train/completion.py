@@ -10,7 +10,6 @@ beside the dataset (:mod:`model.train.cache`).
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,7 +20,7 @@ from ..octree.batch import merge_octrees
 from ..octree.pointcloud import normalization_of
 from ..octree.serialize import octree_from_arrays, octree_to_arrays
 from .cache import cache_dir, derived_arrays, load_derived
-from .data import Sample, manifest_rows
+from .data import LazySequence, Sample, check_stream, manifest_rows, pick_points
 
 CACHE_VERSION = 1
 NORMALS = ("given", "estimated")
@@ -69,8 +68,7 @@ class CompletionSet:
             raise ValueError(f"kind must be one of {', '.join(KINDS)}")
         if normals not in NORMALS:
             raise ValueError(f"normals must be one of {', '.join(NORMALS)}")
-        if isinstance(stream, bool) or not isinstance(stream, int) or stream < 0:
-            raise ValueError(f"stream must be 0 (the whole split in memory) or a number of shapes, not {stream!r}")
+        check_stream(stream)
         data_dir = Path(data_dir)
         manifest, rows = manifest_rows(data_dir, split, depth, categories, limit)
         if manifest["config"].get("partial_scans", 0) < 1:
@@ -86,13 +84,13 @@ class CompletionSet:
         self._frames, self._picks = [], []           # per shape: the truth's cube and its picked points
         for (frame, count, _), _ in loaded:
             self._frames.append(frame)
-            self._picks.append(rng.choice(count, size=points, replace=count < points))
+            self._picks.append(pick_points(rng, count, points))
         self._rows = [(r["category"], r["shape_id"]) for r in rows]
         if stream:
             read = functools.lru_cache(maxsize=stream)(
                 lambda i: self._shape(i, *derived_arrays(data_dir, rows[i], cache, derive, keep)))
-            self.samples = _Lazy(len(rows), lambda i: read(i)[0])
-            self.variants = _Lazy(len(rows), lambda i: read(i)[1])
+            self.samples = LazySequence(len(rows), lambda i: read(i)[0])
+            self.variants = LazySequence(len(rows), lambda i: read(i)[1])
         else:
             shapes = [self._shape(i, rec, arrays) for i, ((_, _, rec), arrays) in enumerate(loaded)]
             self.samples: list[Sample] = [s for s, _ in shapes]
@@ -150,23 +148,6 @@ def _truth_summary(rec: dict) -> tuple[Normalization, int, None]:
 def _with_summary(rec: dict) -> tuple[Normalization, int, dict]:
     """What a set held in memory keeps of a record: the summary and the arrays themselves."""
     return normalization_of(rec["points"]), len(rec["points"]), rec
-
-
-class _Lazy(Sequence):
-    """A read-only sequence of ``n`` items made by ``item(i)`` when asked for."""
-
-    def __init__(self, n: int, item):
-        self._n, self._item = n, item
-
-    def __len__(self) -> int:
-        return self._n
-
-    def __getitem__(self, i):
-        if isinstance(i, slice):
-            return [self._item(k) for k in range(*i.indices(self._n))]
-        if not -self._n <= i < self._n:
-            raise IndexError(i)
-        return self._item(i % self._n)
 
 
 def truth_view(sample: Sample, cube_points: np.ndarray) -> np.ndarray:

@@ -59,7 +59,7 @@ class TrainConfig:
     amp: bool = False                          # bfloat16 autocast of the forward pass
     up: str = "y"                              # classify: the up axis of the dataset's shapes
     skips: bool = False                        # completion: output-guided skip connections
-    stream: int = 0                            # completion: shapes kept in memory when streaming records (0: all)
+    stream: int = 0                            # shapes kept in memory when streaming records (0: all; not classify)
     crop_share: float = 0.0                    # foreground: samples that are a second look's view
     skeleton_weight: float = 0.0               # foreground: weight of the skeleton recall loss (thin parts)
     init: str | None = None                    # a run or checkpoint folder whose weights a new run starts from

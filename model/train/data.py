@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import zipfile
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,14 +49,21 @@ def manifest_rows(data_dir: Path, split: str, depth: int | None = None,
     return manifest, rows
 
 
+def _damaged(path: Path, exc: Exception) -> ValueError:
+    return ValueError(f"{path} is missing or damaged ({type(exc).__name__}); "
+                      "rerun python -m model.data build to repair the dataset")
+
+
+_READ_ERRORS = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile)   # missing, truncated or foreign file
+
+
 def _load_sample(path: Path, octree: str, images: bool) -> tuple[Octree, np.ndarray, np.ndarray | None]:
     """One record's octree, its points in the octree's cube and (with ``images``) its renders;
     ValueError naming the file if it is missing, damaged or has no renders."""
     try:
         rec = load_record(path)
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:   # missing, truncated or foreign file
-        raise ValueError(f"{path} is missing or damaged ({type(exc).__name__}); "
-                         "rerun python -m model.data build to repair the dataset") from None
+    except _READ_ERRORS as exc:
+        raise _damaged(path, exc) from None
     tree = octree_from_arrays(rec.arrays, prefix=f"{octree}_", neighbors=False)
     cube = tree.normalizations[0].to_cube(rec["points"])
     views = None
@@ -63,6 +72,18 @@ def _load_sample(path: Path, octree: str, images: bool) -> tuple[Octree, np.ndar
         if views.ndim != 4 or views.shape[-1] != 4 or len(views) == 0:
             raise ValueError(f"{path} has no RGBA renders; rebuild with --views 24")
     return tree, cube, views
+
+
+def point_count(path: Path) -> int:
+    """How many points a record holds, read from its array's header alone; ValueError as
+    :func:`_load_sample`."""
+    try:
+        with zipfile.ZipFile(path) as z, z.open("points.npy") as f:
+            version = np.lib.format.read_magic(f)
+            read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            return int(read(f)[0][0])
+    except _READ_ERRORS as exc:
+        raise _damaged(path, exc) from None
 
 
 def _load_star(args):
@@ -79,24 +100,61 @@ def process_map(fn, jobs: list, workers: int = 1, chunksize: int = 4) -> list:
         return pool.map(fn, jobs, chunksize=chunksize)
 
 
+def check_stream(stream) -> None:
+    """ValueError unless ``stream`` is 0 (a split held in memory) or a number of shapes to keep."""
+    if isinstance(stream, bool) or not isinstance(stream, int) or stream < 0:
+        raise ValueError(f"stream must be 0 (the whole split in memory) or a number of shapes, not {stream!r}")
+
+
+class LazySequence(Sequence):
+    """A read-only sequence of ``n`` items made by ``item(i)`` when asked for."""
+
+    def __init__(self, n: int, item):
+        self._n, self._item = n, item
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self._item(k) for k in range(*i.indices(self._n))]
+        if not -self._n <= i < self._n:
+            raise IndexError(i)
+        return self._item(i % self._n)
+
+
 class RecordSet:
-    """The records of one split of a dataset, held in memory (octree arrays and a point subset).
+    """The records of one split of a dataset (octree arrays, a point subset and optionally the
+    renders): held in memory, or with ``stream`` read from the dataset each time a shape is asked
+    for (the last ``stream`` shapes kept), for splits larger than memory: the same samples.
 
     ``workers`` > 1 reads the records in that many processes (the same samples as one)."""
 
     def __init__(self, data_dir: str | Path, split: str, octree: str = "adaptive",
                  points: int = 2048, depth: int | None = None, limit: int | None = None, seed: int = 0,
-                 images: bool = False, categories: tuple[str, ...] | None = None, workers: int = 1):
+                 images: bool = False, categories: tuple[str, ...] | None = None, workers: int = 1,
+                 stream: int = 0):
+        check_stream(stream)
         data_dir = Path(data_dir)
-        _, rows = manifest_rows(data_dir, split, depth, categories, limit)
+        manifest, rows = manifest_rows(data_dir, split, depth, categories, limit)
         rng = np.random.default_rng(seed)
-        loaded = process_map(_load_star, [(data_dir / r["path"], octree, images) for r in rows], workers, 8)
-        self.samples: list[Sample] = []
-        for r, (tree, cube, views) in zip(rows, loaded):
-            pick = rng.choice(len(cube), size=points, replace=len(cube) < points)
-            self.samples.append(Sample(r["category"], r["shape_id"], tree, cube[pick].astype(np.float32), views))
-        self.depth = self.samples[0].octree.depth
+        self.depth = int(manifest["config"]["depth"])
         self.latents = None        # optional per-shape target codes (a tensor), set by a task
+        paths = [data_dir / r["path"] for r in rows]
+        if stream:
+            picks = [pick_points(rng, n, points) for n in process_map(point_count, paths, workers, 32)]
+
+            def read(i: int) -> Sample:
+                tree, cube, views = _load_sample(paths[i], octree, images)
+                return Sample(rows[i]["category"], rows[i]["shape_id"], tree,
+                              cube[picks[i]].astype(np.float32), views)
+
+            self.samples: Sequence[Sample] = LazySequence(len(rows), functools.lru_cache(maxsize=stream)(read))
+            return
+        loaded = process_map(_load_star, [(p, octree, images) for p in paths], workers, 8)
+        self.samples = [Sample(r["category"], r["shape_id"], tree,
+                               cube[pick_points(rng, len(cube), points)].astype(np.float32), views)
+                        for r, (tree, cube, views) in zip(rows, loaded)]
 
     def __len__(self) -> int:
         return len(self.samples)
@@ -105,3 +163,8 @@ class RecordSet:
         """The merged octree (with neighbour tables) and stacked points (B, P, 3) of ``indices``."""
         chosen = [self.samples[i] for i in indices]
         return merge_octrees([s.octree for s in chosen], neighbors=True), np.stack([s.points for s in chosen])
+
+
+def pick_points(rng: np.random.Generator, count: int, points: int) -> np.ndarray:
+    """Which ``points`` of a record's ``count`` a sample keeps (with repeats when too few)."""
+    return rng.choice(count, size=points, replace=count < points)

@@ -68,7 +68,8 @@ class AutoencoderTask(OctreeInputTask):
 
     def dataset(self, cfg, split, seed, points=2048, limit=None):
         return RecordSet(cfg.data, split, ARCHS[cfg.arch].octree, points=points, depth=cfg.depth,
-                         limit=limit, seed=seed, categories=cfg.categories, workers=cfg.workers)
+                         limit=limit, seed=seed, categories=cfg.categories, workers=cfg.workers,
+                         stream=cfg.stream)
 
     def build_model(self, cfg):
         return Autoencoder(cfg.arch, cfg.depth, latent=cfg.latent, base_channels=cfg.channels,
@@ -125,7 +126,8 @@ class ImageTask:
 
     def dataset(self, cfg, split, seed, points=2048, limit=None):
         data = RecordSet(cfg.data, split, "adaptive", points=points, depth=cfg.depth, limit=limit,
-                         seed=seed, images=True, categories=cfg.categories, workers=cfg.workers)
+                         seed=seed, images=True, categories=cfg.categories, workers=cfg.workers,
+                         stream=cfg.stream)
         if cfg.teacher is not None:            # the teacher's codes of every shape (or view), computed once
             model, tcfg = self._teacher(cfg)
             codes = []
@@ -217,6 +219,8 @@ class ClassifyTask(OctreeInputTask):
         from ..networks.classifier import CLASSIFIER_ARCHS
         if cfg.arch not in CLASSIFIER_ARCHS:
             raise ValueError(f"unknown arch {cfg.arch!r}; choose from {', '.join(CLASSIFIER_ARCHS)}")
+        if cfg.stream:
+            raise ValueError("classification holds its split in memory: stream must be 0")
         if not cfg.categories:         # the classes: every category of the dataset, fixed in the config
             from .data import manifest_rows
             manifest, _ = manifest_rows(Path(cfg.data), "train", cfg.depth)
@@ -289,7 +293,7 @@ class ForegroundTask:
     def dataset(self, cfg, split, seed, points=2048, limit=None):
         # renders only: a dataset of any octree depth serves (the same shapes, the same renders)
         return RecordSet(cfg.data, split, "adaptive", points=16, depth=None, limit=limit, seed=seed,
-                         images=True, categories=cfg.categories, workers=cfg.workers)
+                         images=True, categories=cfg.categories, workers=cfg.workers, stream=cfg.stream)
 
     def build_model(self, cfg):
         from ..networks.foreground import ForegroundModel

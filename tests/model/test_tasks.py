@@ -150,6 +150,50 @@ def test_a_streamed_completion_set_gives_the_same_samples_and_batches(scan_data)
         streamed.samples[len(held)]
 
 
+def test_a_streamed_record_set_gives_the_same_samples_image_batches_and_training(tiny_data, tmp_path):
+    import shutil
+
+    from model.preprocess import ImageSpec
+    from model.train.data import RecordSet
+    from model.train.images import image_batch
+
+    held = RecordSet(tiny_data, "train", images=True, seed=3, points=64)
+    streamed = RecordSet(tiny_data, "train", images=True, seed=3, points=64, stream=2)
+    assert len(streamed) == len(held) >= 3 and streamed.depth == held.depth == 5
+    assert isinstance(held.samples, list) and not isinstance(streamed.samples, list)
+    for a, b in zip(held.samples, streamed.samples):
+        assert (a.category, a.shape_id) == (b.category, b.shape_id) and np.array_equal(a.points, b.points)
+        assert _same_octree(a.octree, b.octree) and np.array_equal(a.images, b.images)
+    order = [2, 0, 1, 2]
+    for seed in range(4):             # random views, backgrounds drawn from the other samples, photos
+        x = image_batch([held.samples[i] for i in order], ImageSpec(size=32), np.random.default_rng(seed), 1.0,
+                        held.samples, photo_share=0.3)
+        y = image_batch([streamed.samples[i] for i in order], ImageSpec(size=32), np.random.default_rng(seed),
+                        1.0, streamed.samples, photo_share=0.3)
+        assert np.array_equal(x, y)
+
+    # the same training, step for step (the image task's inputs come through the stream)
+    kw = dict(task="image", arch="aocnn", encoder="lenet", encoder_width=4, image_size=32, iters=3, val_every=3)
+    a = Trainer(config(tiny_data, tmp_path / "held", **kw))
+    b = Trainer(config(tiny_data, tmp_path / "streamed", stream=2, **kw))
+    sa, sb = a.run(), b.run()
+    assert sa["val"]["total"] == sb["val"]["total"]
+    wa, wb = a.model.state_dict(), b.model.state_dict()
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+
+    # a damaged record is named when the set is built, not at some later step
+    broken = tmp_path / "broken"
+    shutil.copytree(tiny_data, broken)
+    row = json.loads((broken / "manifest.json").read_text())["records"][0]
+    (broken / row["path"]).write_bytes(b"not a record")
+    with pytest.raises(ValueError, match="missing or damaged"):
+        RecordSet(broken, row["split"], stream=2)
+    with pytest.raises(ValueError, match="stream must be 0"):
+        RecordSet(tiny_data, "train", stream=-1)
+    with pytest.raises(ValueError, match="stream must be 0"):
+        Trainer(config(tiny_data, tmp_path / "cls", task="classify", stream=2))
+
+
 def test_classify_trains_on_rotations_resumes_and_votes(tiny_data, tmp_path, capsys):
     from model.evaluate import main as evaluate_main
     from model.train.classify import ROTATIONS
