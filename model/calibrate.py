@@ -36,7 +36,7 @@ from .networks.decoder import teacher_skips
 from .nn.tensors import OctreeTensors
 from .octree import SPLIT
 from .checkpoint import load_model
-from .evaluate import MISSING_GAP_VOXELS, category_means, decoded_points
+from .evaluate import MISSING_GAP, category_means, decoded_points
 from .octree.metrics import chamfer_distance, missing_distance
 from .results_table import paired_difference
 from .train.completion import truth_view
@@ -143,7 +143,7 @@ def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int
     choice: among the settings whose fused outputs' Chamfer distance (category mean) is not
     significantly above the lowest's (its paired 95% bootstrap interval over the shapes,
     ``draws`` draws, reaches 0), the one closest to the missing part (the completion's own
-    measure, :data:`model.evaluate.MISSING_GAP_VOXELS`).  ``limit``: the first shapes of the
+    measure, :data:`model.evaluate.MISSING_GAP`).  ``limit``: the first shapes of the
     split only; ``resolution``: the patch sampling grid."""
     loaded = load_model(run)
     model, cfg = loaded.model, loaded.config
@@ -155,7 +155,6 @@ def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int
     candidates = keep_scan_candidates(cfg.depth)
     rows: list[list[dict]] = [[] for _ in candidates]
     floor: dict[str, list[float]] = {}
-    gap = MISSING_GAP_VOXELS / (1 << cfg.depth)
     for s in range(0, len(dataset), batch_size):
         idx = np.arange(s, min(len(dataset), s + batch_size))
         with torch.no_grad():
@@ -169,7 +168,7 @@ def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int
                                                    guide=guide)):
                 sample = dataset.samples[i]
                 pts = truth_view(sample, pts)
-                missing = missing_distance(sample.points, sample.partial, pts, gap) if len(pts) else None
+                missing = missing_distance(sample.points, sample.partial, pts, MISSING_GAP) if len(pts) else None
                 rows[c].append({"category": sample.category, "shape_id": sample.shape_id,
                                 "chamfer_x1e3": chamfer_distance(sample.points, pts) * 1e3 if len(pts) else None,
                                 "missing_x1e3": missing * 1e3 if missing is not None else None})

@@ -26,7 +26,7 @@ from .checkpoint import load_model
 from .data.dataset import BuildConfig, ShapeTask, load_record, scan_shape
 from .data.partial import partial_from_scan
 from .data.shapes import stable_hash
-from .evaluate import MISSING_GAP_VOXELS, decoded_points
+from .evaluate import MISSING_GAP, decoded_points
 from .files import json_text, write_atomic
 from .octree import scan_frame, scan_octree, validate
 from .octree.batch import merge_octrees
@@ -91,7 +91,6 @@ def degrade(runs: list[str], data: str, limit_per_category: int | None = None, r
         if m.config.task != "completion":
             raise ValueError(f"{m.meta.get('source_run', 'a model')} is not a completion model")
     tasks, cfg = _tasks(Path(data), limit_per_category, split)
-    gap = MISSING_GAP_VOXELS / (1 << models[0].config.depth)
     rows = {s.name: {r: [] for r in ["input", *runs]} for s in SETTINGS}
     t = time.perf_counter()
     for task in tasks:
@@ -108,7 +107,7 @@ def degrade(runs: list[str], data: str, limit_per_category: int | None = None, r
                 continue
             frame = scan_frame(pts.astype(np.float64))
             seen = truth.to_cube(pts)
-            missing = missing_part(truth_pts, seen, gap)          # once per scan, for every row
+            missing = missing_part(truth_pts, seen, MISSING_GAP)          # once per scan, for every row
             rows[s.name]["input"].append({**base, "chamfer_x1e3": chamfer_distance(truth_pts, seen) * 1e3,
                                           "missing_x1e3": _missing_x1e3(missing, seen)})
             cloud = validate(pts, nrm)

@@ -136,8 +136,9 @@ def decoded_points(model, latent: torch.Tensor, octree_batch: Octree | None, res
     return out
 
 
-MISSING_GAP_VOXELS = 2
-"""Truth points farther than this many finest voxels from the partial scan form its missing part."""
+MISSING_GAP = 2 / 64
+"""Truth points farther than this from the partial scan (in the truth's unit cube: two voxels at
+depth 6) form its missing part: the same part of every shape for models of any depth."""
 
 
 FSCORE_SHARE = 0.01
@@ -177,9 +178,9 @@ def surface_rows(sample, tree: Octree, pts: np.ndarray, seed: int) -> dict:
     return row
 
 
-def _missing(sample, pts: np.ndarray, depth: int) -> dict:
+def _missing(sample, pts: np.ndarray) -> dict:
     """Completion rows: the missing part's distance to the output and to the input itself."""
-    part = missing_part(sample.points, sample.partial, MISSING_GAP_VOXELS / (1 << depth))
+    part = missing_part(sample.points, sample.partial, MISSING_GAP)
     if not len(part):
         return {"missing_x1e3": None, "input_missing_x1e3": None}
     return {"missing_x1e3": mean_squared_distance(part, pts) * 1e3 if len(pts) else None,
@@ -305,7 +306,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
                 row.update({m: None for m in metrics if m != "mask_iou"})
             if sample.partial is not None:        # the do-nothing floor: the input itself
                 row["input_chamfer_x1e3"] = chamfer_distance(sample.points, sample.partial) * 1e3
-                row.update(_missing(sample, pts, cfg.depth))
+                row.update(_missing(sample, pts))
             for m in metrics:
                 if row.get(m) is not None:
                     per_cat[m].setdefault(sample.category, []).append(row[m])

@@ -77,8 +77,8 @@ def test_completion_training_resumes_and_evaluates_against_the_input_floor(scan_
         assert res["task"] == "completion" and res["normals"] == normals and res["shapes"] == 4
         floor = [r["input_chamfer_x1e3"] for r in res["per_shape"]]
         assert all(0 < f < 50 for f in floor)                 # partial scans of the truth: close, not equal
-        # the missing part lies beyond two finest voxels (1/16 at depth 5) of the scan, by definition
-        assert all(r["input_missing_x1e3"] is None or r["input_missing_x1e3"] > (2 / 32) ** 2 * 1e3
+        # the missing part lies beyond 1/32 of the cube from the scan, by definition, at every depth
+        assert all(r["input_missing_x1e3"] is None or r["input_missing_x1e3"] > (1 / 32) ** 2 * 1e3
                    for r in res["per_shape"])
         assert res["input_chamfer_x1e3_category_mean"] == pytest.approx(
             np.mean([np.mean([r["input_chamfer_x1e3"] for r in res["per_shape"] if r["category"] == c])
@@ -128,6 +128,21 @@ def test_completion_cache_is_rebuilt_when_stale_or_damaged(scan_data):
     assert _same_octree(again.samples[0].octree, first.samples[0].octree)
     with np.load(target) as f:
         assert str(f["record_sha256"]) != ""
+
+
+def test_the_missing_part_is_the_same_part_of_a_shape_for_models_of_every_depth():
+    """Truth points 1.5/32 of the cube beyond the scan are missing (two voxels at depth 6), those
+    0.5/32 beyond are seen, whatever the depth: a depth-7 model is measured on the shipped one's part."""
+    from types import SimpleNamespace
+
+    from model.evaluate import MISSING_GAP, _missing
+
+    assert MISSING_GAP == 2 / 64
+    scan = np.stack([np.linspace(-1, 1, 401), np.zeros(401), np.zeros(401)], 1)
+    truth = np.concatenate([scan, scan + [0, 0.5 / 32, 0], scan + [0, 1.5 / 32, 0]])
+    rows = _missing(SimpleNamespace(points=truth, partial=scan), scan)
+    assert rows["input_missing_x1e3"] == pytest.approx((1.5 / 32) ** 2 * 1e3, rel=1e-3)   # only the far line
+    assert rows["missing_x1e3"] == rows["input_missing_x1e3"]
 
 
 def test_a_streamed_completion_set_gives_the_same_samples_and_batches(scan_data):
