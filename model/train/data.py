@@ -140,6 +140,7 @@ class RecordSet:
         rng = np.random.default_rng(seed)
         self.depth = int(manifest["config"]["depth"])
         self.latents = None        # optional per-shape target codes (a tensor), set by a task
+        self.record_sha256 = [r["sha256"] for r in rows]
         paths = [data_dir / r["path"] for r in rows]
         if stream:
             picks = [pick_points(rng, n, points) for n in process_map(point_count, paths, workers, 32)]

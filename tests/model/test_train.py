@@ -229,6 +229,30 @@ def test_image_augmentation_is_a_function_of_seed_and_step(tiny_data, tmp_path):
     assert x1.shape == (len(idx), 3, 32, 32)
 
 
+def test_a_students_teacher_codes_are_kept_with_the_run_and_read_back_on_resume(tiny_data, tmp_path):
+    teacher = Trainer(config(tiny_data, tmp_path / "ae", iters=2))
+    teacher.run()
+    kw = dict(task="image", arch="aocnn", encoder="lenet", encoder_width=4, image_size=32, iters=2,
+              teacher=str(tmp_path / "ae"))
+    first = Trainer(config(tiny_data, tmp_path / "img", **kw))
+    kept = sorted((tmp_path / "img" / "teacher-codes").glob("*.pt"))
+    assert [p.name.split("-")[0] for p in kept] == ["train", "val"]
+    train_codes = torch.load(kept[0])
+    assert torch.equal(train_codes, first.train_set.latents) and train_codes.shape == (len(first.train_set), 32)
+    torch.save(torch.zeros_like(train_codes), kept[0])            # a resumed run reads them, not computes
+    again = Trainer(config(tiny_data, tmp_path / "img", **kw))
+    assert torch.equal(again.train_set.latents, torch.zeros_like(train_codes))
+    assert torch.equal(again.val_set.latents, first.val_set.latents)
+    # another teacher's weights are another key: its codes are computed afresh
+    teacher.train_step()
+    teacher.save()
+    from model.train.tasks import _load_teacher
+    _load_teacher.cache_clear()
+    other = Trainer(config(tiny_data, tmp_path / "img", **kw))
+    assert len(list((tmp_path / "img" / "teacher-codes").glob("*.pt"))) == 4
+    assert not torch.equal(other.train_set.latents, first.train_set.latents)
+
+
 def test_image_encoder_regressed_onto_an_autoencoders_latents_uses_its_decoder(tiny_data, tmp_path):
     teacher = Trainer(config(tiny_data, tmp_path / "ae", iters=3))
     teacher.run()
