@@ -229,11 +229,17 @@ def test_image_augmentation_is_a_function_of_seed_and_step(tiny_data, tmp_path):
     assert x1.shape == (len(idx), 3, 32, 32)
 
 
-def test_a_students_teacher_codes_are_kept_with_the_run_and_read_back_on_resume(tiny_data, tmp_path):
-    teacher = Trainer(config(tiny_data, tmp_path / "ae", iters=2))
+def _teacher_and_student(data, tmp_path, teacher_iters: int, student_iters: int) -> tuple[Trainer, dict]:
+    """An autoencoder run ``ae`` trained ``teacher_iters`` steps, and the settings of an image
+    student regressed onto its codes."""
+    teacher = Trainer(config(data, tmp_path / "ae", iters=teacher_iters))
     teacher.run()
-    kw = dict(task="image", arch="aocnn", encoder="lenet", encoder_width=4, image_size=32, iters=2,
-              teacher=str(tmp_path / "ae"))
+    return teacher, dict(task="image", arch="aocnn", encoder="lenet", encoder_width=4, image_size=32,
+                         iters=student_iters, teacher=str(tmp_path / "ae"))
+
+
+def test_a_students_teacher_codes_are_kept_with_the_run_and_read_back_on_resume(tiny_data, tmp_path):
+    teacher, kw = _teacher_and_student(tiny_data, tmp_path, 2, 2)
     first = Trainer(config(tiny_data, tmp_path / "img", **kw))
     kept = sorted((tmp_path / "img" / "teacher-codes").glob("*.pt"))
     assert [p.name.split("-")[0] for p in kept] == ["train", "val"]
@@ -254,10 +260,7 @@ def test_a_students_teacher_codes_are_kept_with_the_run_and_read_back_on_resume(
 
 
 def test_image_encoder_regressed_onto_an_autoencoders_latents_uses_its_decoder(tiny_data, tmp_path):
-    teacher = Trainer(config(tiny_data, tmp_path / "ae", iters=3))
-    teacher.run()
-    kw = dict(task="image", arch="aocnn", encoder="lenet", encoder_width=4, image_size=32, iters=4,
-              teacher=str(tmp_path / "ae"))
+    teacher, kw = _teacher_and_student(tiny_data, tmp_path, 3, 4)
     student = Trainer(config(tiny_data, tmp_path / "img", **kw))
     first = student.validate()["latent"]
     student.run()
