@@ -32,7 +32,7 @@ class RunCurves:
     name: str
     steps: dict[str, np.ndarray]
     values: dict[str, dict[str, np.ndarray]]
-    seconds: float | None
+    seconds: float | None           # wall time of its training processes, summed
 
     def terms(self, split: str) -> list[str]:
         return list(self.values.get(split, {}))
@@ -62,9 +62,21 @@ def read_curves(run: str | Path, name: str | None = None) -> RunCurves:
         names = sorted({k for _, row in keyed for k, v in row.items()
                         if k not in NOT_TERMS and isinstance(v, (int, float))})
         values[split] = {k: np.array([float(row.get(k, np.nan)) for _, row in keyed]) for k in names}
-    train = [row for (s, _), row in rows.items() if s == "train" and "seconds" in row]
-    seconds = max((float(r["seconds"]) for r in train), default=None)
-    return RunCurves(name or Path(run).name, steps, values, seconds)
+    return RunCurves(name or Path(run).name, steps, values, _wall_seconds(path))
+
+
+def _wall_seconds(path: Path) -> float | None:
+    """The training's wall time over all its processes: each process logs the seconds since it
+    started, so a resumed run's rows start again from 0; the last value of each such stretch adds up."""
+    total, last = 0.0, None
+    for line in path.read_text().splitlines():
+        row = json.loads(line) if line.strip() else {}
+        if row.get("split") != "train" or not isinstance(row.get("seconds"), (int, float)):
+            continue
+        if last is not None and row["seconds"] < last:
+            total += last
+        last = float(row["seconds"])
+    return None if last is None else total + last
 
 
 def moving_average(values: np.ndarray, window: int) -> np.ndarray:

@@ -21,9 +21,9 @@ def _rows(scale: float, resumed: bool = False) -> list[dict]:
     train = [{"step": s, "split": "train", "lr": 1e-3, "seconds": 0.5 * s, "total": scale / s, "patch": 0.1}
              for s in range(10, 210, 10)]
     val = [{"step": s, "split": "val", "total": scale / s + 0.05, "patch": 0.12} for s in (100, 200)]
-    if resumed:        # killed after step 150, resumed from the step-100 checkpoint: 110..150 logged twice
-        first = [dict(r, total=7.0) for r in train[10:15]]
-        train = train[:10] + first + train[10:]
+    if resumed:        # killed after step 150, resumed from the step-100 checkpoint: 110..150 logged twice,
+        first = [dict(r, total=7.0) for r in train[10:15]]        # the new process's seconds from 0
+        train = train[:10] + first + [dict(r, seconds=0.5 * (r["step"] - 100)) for r in train[10:]]
     return train + val
 
 
@@ -32,7 +32,8 @@ def test_rows_per_split_the_last_row_of_a_repeated_step_counts(tmp_path):
     c = read_curves(tmp_path / "a")
     assert c.steps["train"].tolist() == list(range(10, 210, 10)) and c.steps["val"].tolist() == [100, 200]
     assert c.values["train"]["total"][10:15] == pytest.approx([2.0 / s for s in range(110, 160, 10)])
-    assert c.values["val"]["total"] == pytest.approx([0.07, 0.06]) and c.seconds == 100.0
+    assert c.values["val"]["total"] == pytest.approx([0.07, 0.06])
+    assert c.seconds == 75.0 + 50.0                   # both processes' wall time: to step 150, then 100 -> 200
     assert sorted(c.terms("val")) == ["patch", "total"]
 
 
