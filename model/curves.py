@@ -44,6 +44,7 @@ def read_curves(run: str | Path, name: str | None = None) -> RunCurves:
     if not path.is_file():
         raise ValueError(f"{run}: no metrics.jsonl (a run folder of python -m model.train)")
     rows: dict[tuple[str, int], dict] = {}
+    clocks: list[float] = []                    # the train rows' seconds, in the order logged
     for n, line in enumerate(path.read_text().splitlines(), 1):
         if not line.strip():
             continue
@@ -53,6 +54,8 @@ def read_curves(run: str | Path, name: str | None = None) -> RunCurves:
         except (json.JSONDecodeError, KeyError, TypeError, ValueError):
             raise ValueError(f"{path}:{n}: not a metrics row") from None
         rows[key] = row                         # a resumed run's repeated step: the last row counts
+        if key[0] == "train" and isinstance(row.get("seconds"), (int, float)):
+            clocks.append(float(row["seconds"]))
     if not rows:
         raise ValueError(f"{path}: no rows yet")
     steps, values = {}, {}
@@ -62,21 +65,15 @@ def read_curves(run: str | Path, name: str | None = None) -> RunCurves:
         names = sorted({k for _, row in keyed for k, v in row.items()
                         if k not in NOT_TERMS and isinstance(v, (int, float))})
         values[split] = {k: np.array([float(row.get(k, np.nan)) for _, row in keyed]) for k in names}
-    return RunCurves(name or Path(run).name, steps, values, _wall_seconds(path))
+    return RunCurves(name or Path(run).name, steps, values, _wall_seconds(clocks))
 
 
-def _wall_seconds(path: Path) -> float | None:
+def _wall_seconds(clocks: list[float]) -> float | None:
     """The training's wall time over all its processes: each process logs the seconds since it
-    started, so a resumed run's rows start again from 0; the last value of each such stretch adds up."""
-    total, last = 0.0, None
-    for line in path.read_text().splitlines():
-        row = json.loads(line) if line.strip() else {}
-        if row.get("split") != "train" or not isinstance(row.get("seconds"), (int, float)):
-            continue
-        if last is not None and row["seconds"] < last:
-            total += last
-        last = float(row["seconds"])
-    return None if last is None else total + last
+    started, so a resumed run's ``clocks`` start again from 0; the last value of each such stretch adds up."""
+    if not clocks:
+        return None
+    return sum(a for a, b in zip(clocks, clocks[1:]) if b < a) + clocks[-1]
 
 
 def moving_average(values: np.ndarray, window: int) -> np.ndarray:
