@@ -49,6 +49,7 @@ from .octree import LEAF, Octree
 from .octree.metrics import chamfer_distance, mean_squared_distance, missing_part, sample_patches
 from .octree.batch import split_octree
 from .octree.fuse import keep_scan
+from .octree.symmetry import MIN_SUPPORT
 from .preprocess import MaskSpec
 from .surface import DEFAULT_SURFACE, SURFACES, surface_mesh
 from .train.config import TrainConfig
@@ -195,7 +196,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
              mesh_dir: str | None = None, batch_size: int = 8, seed: int = 0, oracle: str = "none",
              align: bool = False, bundle: str | None = None, normals: str = "given",
              surface: str = DEFAULT_SURFACE, photos: bool = False, remove_background: str = "auto",
-             keep_scan: bool = False) -> dict:
+             keep_scan: bool = False, symmetry: float | None = None) -> dict:
     """The results dictionary written by the CLI (see the module docstring).  ``bundle``: encode
     and decode with this exported bundle in onnxruntime instead of the torch model.  ``normals``:
     completion inputs built with the scanner's normals or with estimated ones.  ``surface``: the
@@ -204,7 +205,9 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     background removal (the bundle's foreground network; ``remove_background`` as the service's
     parameter), and the mask's IoU with the exact one is reported.  ``keep_scan``: completion outputs
     keep the scan's own patches where it saw the shape (:func:`model.octree.fuse.keep_scan`, the
-    service's ``keep_scan``)."""
+    service's ``keep_scan``).  ``symmetry``: completion inputs are read with their mirror image
+    where its plane has at least this support (:mod:`model.octree.symmetry`, the service's
+    ``symmetry``)."""
     if oracle not in ORACLES:
         raise ValueError(f"--oracle must be one of {', '.join(ORACLES)}")
     loaded = load_model(run)
@@ -227,6 +230,8 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         raise ValueError("--photos goes with an image model")
     if keep_scan and cfg.task != "completion":
         raise ValueError("--keep-scan goes with a completion model")
+    if symmetry is not None and cfg.task != "completion":
+        raise ValueError("--symmetry goes with a completion model")
     if cfg.task == "classify":
         return evaluate_classifier(model, cfg, run, split, limit, runtime=runtime, bundle=bundle)
     if cfg.task == "foreground":
@@ -244,7 +249,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     fill_bias = None
     if keep_scan:     # the decode setting chosen for keep_scan outputs: the bundle's when it is served
         fill_bias = runtime.bundle.keep_scan_bias if runtime is not None else empty_bias_of(loaded.meta.get("keep_scan"))
-    extra = {"normals": normals} if completion else {}
+    extra = {"normals": normals, "symmetry": symmetry} if completion else {}
     records = task.dataset(cfg, split, seed, points=20_000, limit=limit, **extra)
     metrics = ("chamfer_x1e3", "chamfer_icp_x1e3") if align else ("chamfer_x1e3",)
     surfaces = octree_decoder and model.decoder.has_plane(cfg.depth)
@@ -347,6 +352,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     if completion:
         results["normals"] = normals
         results["keep_scan"] = keep_scan
+        results["symmetry"] = symmetry
         results["keep_scan_empty_bias"] = {str(d): b for d, b in sorted((fill_bias or {}).items())}
     return results
 
@@ -499,6 +505,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keep-scan", action="store_true",
                     help="completion: keep the scan's own patches where it saw the shape, the network's "
                          "elsewhere (the service's keep_scan)")
+    ap.add_argument("--symmetry", action="store_true",
+                    help="completion: read each scan with its mirror image when its left-right mirror plane is "
+                         f"supported well enough (at least {MIN_SUPPORT:.0%}% of it lands on itself; the service's "
+                         "symmetry)")
     args = ap.parse_args(argv)
     try:
         folder = os.path.dirname(os.path.abspath(args.out))
@@ -509,7 +519,7 @@ def main(argv: list[str] | None = None) -> int:
         results = evaluate(args.run, args.data, args.split, args.resolution, args.limit, args.mesh_dir,
                            oracle=args.oracle, align=args.icp, bundle=args.bundle, normals=args.normals,
                            surface=args.surface, photos=args.photos, remove_background=args.remove_background,
-                           keep_scan=args.keep_scan)
+                           keep_scan=args.keep_scan, symmetry=MIN_SUPPORT if args.symmetry else None)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

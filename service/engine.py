@@ -21,6 +21,7 @@ from model.octree import Octree, PointCloud, build_octree, scan_octree
 from model.octree.geometry import up_rotations
 from model.octree.batch import merge_octrees, split_octree
 from model.octree.fuse import keep_scan
+from model.octree.symmetry import Mirror, symmetrize
 
 from .batching import Batcher
 from .errors import APIError
@@ -40,7 +41,8 @@ class StartupError(RuntimeError):
 @dataclass
 class Request:
     """One request's input and output choices, as the batch functions take them; ``framed``: a
-    photo's framing (mask source, crop box, mask), set by :meth:`Engine.frame_image`."""
+    photo's framing (mask source, crop box, mask), set by :meth:`Engine.frame_image`; ``mirror``:
+    a scan's mirror plane and its support, set by :meth:`Engine.complete_batch` when ``symmetry``."""
 
     data: bytes
     fmt: str
@@ -54,6 +56,8 @@ class Request:
     foreground_ratio: float | None = None
     framed: Framed | None = None
     keep_scan: bool = False            # completion: the output keeps the scan's patches where it has points
+    symmetry: bool = False             # completion: a scan supported by its mirror plane is read with its mirror image
+    mirror: Mirror | None = None
 
 
 @dataclass
@@ -194,7 +198,10 @@ class Engine:
                 loaded = shape_input(item.data, item.filename, o.depth, self.settings.max_points,
                                      self.settings.max_npz_bytes)
             with item.timer("octree_build"):       # the scan's frame, as the model was trained
-                return scan_octree(loaded.cloud, o.depth, adaptive=o.adaptive, full_depth=o.full_depth,
+                cloud = loaded.cloud
+                if item.symmetry:
+                    cloud, item.mirror = symmetrize(cloud)
+                return scan_octree(cloud, o.depth, adaptive=o.adaptive, full_depth=o.full_depth,
                                    adaptive_depth=o.adaptive_depth,
                                    **({"threshold": o.threshold} if o.threshold else {}))
 

@@ -19,6 +19,7 @@ from ..octree import Normalization, Octree, build_octree, scan_frame, scan_octre
 from ..octree.batch import merge_octrees
 from ..octree.pointcloud import normalization_of
 from ..octree.serialize import octree_from_arrays, octree_to_arrays
+from ..octree.symmetry import find_mirror, mirror_cloud
 from .cache import cache_dir, derived_arrays, load_derived
 from .data import LazySequence, Sample, check_stream, manifest_rows, pick_points
 
@@ -36,16 +37,21 @@ class Variant:
     partial: np.ndarray                # the partial points in the truth cube (the do-nothing floor)
 
 
-def record_octrees(record, depth: int, kind: str) -> dict[str, np.ndarray]:
-    """Every octree of one record's completion samples, as arrays (the cache file's content)."""
+def record_octrees(record, depth: int, kind: str, symmetry: float | None = None) -> dict[str, np.ndarray]:
+    """Every octree of one record's completion samples, as arrays (the cache file's content).
+    ``symmetry``: each scan whose mirror plane has at least this support is read with its mirror
+    image (:mod:`model.octree.symmetry`, the service's ``symmetry``), inputs and target in the
+    frame of both; None: the scans as they are."""
     adaptive = kind == "adaptive"
     complete = validate(record["points"], record["normals"])
     out: dict[str, np.ndarray] = {"scans": np.array(len(record["partial_offsets"]) - 1)}
     for j in range(int(out["scans"])):
         pts, nrm = record.partial(j)
-        frame = scan_frame(np.asarray(pts, dtype=np.float64))
-        for mode in NORMALS:
-            cloud = validate(pts, nrm if mode == "given" else None)
+        clouds = {mode: validate(pts, nrm if mode == "given" else None) for mode in NORMALS}
+        if symmetry is not None and (mirror := find_mirror(pts)).supported(symmetry):
+            clouds = {mode: mirror_cloud(cloud, mirror) for mode, cloud in clouds.items()}
+        frame = scan_frame(clouds["given"].points)
+        for mode, cloud in clouds.items():
             out.update(octree_to_arrays(scan_octree(cloud, depth, adaptive=adaptive, neighbors=False), prefix=f"s{j}_{mode}_"))
         target = build_octree(complete, depth, adaptive=adaptive, neighbors=False, normalization=frame)
         out.update(octree_to_arrays(target, prefix=f"s{j}_target_"))
@@ -63,7 +69,7 @@ class CompletionSet:
     def __init__(self, data_dir: str | Path, split: str, kind: str = "adaptive", points: int = 2048,
                  depth: int | None = None, limit: int | None = None, seed: int = 0,
                  categories: tuple[str, ...] | None = None, normals: str = "given", workers: int = 1,
-                 stream: int = 0):
+                 stream: int = 0, symmetry: float | None = None):
         if kind not in KINDS:
             raise ValueError(f"kind must be one of {', '.join(KINDS)}")
         if normals not in NORMALS:
@@ -74,9 +80,12 @@ class CompletionSet:
         if manifest["config"].get("partial_scans", 0) < 1:
             raise ValueError(f"{data_dir} has no partial scans; rebuild with --partial-scans 2")
         built = manifest["config"]["depth"]
-        cache = cache_dir(data_dir, f"completion-{kind}", {"v": CACHE_VERSION, "depth": built, "kind": kind})
+        key = {"v": CACHE_VERSION, "depth": built, "kind": kind}
+        if symmetry is not None:
+            key["symmetry"] = symmetry
+        cache = cache_dir(data_dir, f"completion-{kind}", key)
         keep = ("points", "partial_points", "partial_offsets")
-        derive = functools.partial(record_octrees, depth=built, kind=kind)
+        derive = functools.partial(record_octrees, depth=built, kind=kind, symmetry=symmetry)
         loaded = load_derived(data_dir, rows, cache, derive, ("points",) if stream else keep, workers,
                               derived=not stream, reduce=_truth_summary if stream else _with_summary)
         rng = np.random.default_rng(seed)

@@ -218,11 +218,12 @@ class CompletionTask(AutoencoderTask):
             raise ValueError(f"unknown arch {cfg.arch!r}; choose from {', '.join(COMPLETION_ARCHS)}")
         _check_structure(cfg)
 
-    def dataset(self, cfg, split, seed, points=2048, limit=None, normals: str = "given"):
+    def dataset(self, cfg, split, seed, points=2048, limit=None, normals: str = "given",
+                symmetry: float | None = None):
         from .completion import CompletionSet
         return CompletionSet(cfg.data, split, ARCHS[cfg.arch].octree, points=points, depth=cfg.depth,
                              limit=limit, seed=seed, categories=cfg.categories, normals=normals,
-                             workers=cfg.workers, stream=cfg.stream)
+                             workers=cfg.workers, stream=cfg.stream, symmetry=symmetry)
 
     def inputs(self, cfg, dataset, indices, rng):
         source, target = dataset.pairs(indices, rng)

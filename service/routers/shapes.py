@@ -9,6 +9,7 @@ from fastapi.responses import Response
 
 from model.formats import IMAGE_FORMATS
 from model.octree.build import MAX_BUILD_DEPTH
+from model.octree.symmetry import MIN_SUPPORT, Mirror
 from model.preprocess import Framed, upload_box
 from model.surface import DEFAULT_SURFACE
 
@@ -57,6 +58,10 @@ FOREGROUND_RATIO_Q = Query(None, ge=0.3, le=1.0, description="the share of the e
 KEEP_SCAN_Q = Query(True, description="true: where the scan has points the output keeps the scan's own patches (its "
                     "adaptive octree), and the network's patches fill everywhere the scan has none, down to the "
                     "finest octants; false: the network's output alone (it re-draws the scanned parts too, coarser)")
+SYMMETRY_Q = Query(True, description="true: when the scan is mirror-symmetric across a left-right plane (x = c, "
+                   f"the scan upright with +Y up; at least {MIN_SUPPORT:.0%} of it landing on itself mirrored), it "
+                   "is completed from itself and its mirror image, so a side the scanner missed starts from the "
+                   "side it saw; X-Symmetry says what was found; false: the scan as sent")
 DEBUG_Q = Query(None, description="mask: answer with the mask the framing used (an 8-bit greyscale PNG of the "
                 "image's size, 255 = object) instead of the mesh; 422 no_mask when there is none")
 
@@ -128,16 +133,26 @@ async def complete(points: UploadFile = File(..., description="PLY (ascii/binary
                                               "vertices, with or without normals"),
                    format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q, surface: Surface = SURFACE_Q,
                    faces: int | None = FACES_Q, color_by_depth: bool = COLOR_Q, keep_scan: bool = KEEP_SCAN_Q,
-                   accept: str | None = Header(None), eng: Engine = Depends(engine)) -> Response:
+                   symmetry: bool = SYMMETRY_Q, accept: str | None = Header(None),
+                   eng: Engine = Depends(engine)) -> Response:
     b = eng.model("completion").bundle
     _check_faces(surface, faces)
     data, filename = await _read(points)
     timer = StageTimer(eng.metrics)
-    mesh = await _submit(eng, "completion",
-                         Request(data, choose_format(format, accept), depth, color_by_depth, timer, filename, surface,
-                                 faces, keep_scan=keep_scan))
+    request = Request(data, choose_format(format, accept), depth, color_by_depth, timer, filename, surface, faces,
+                      keep_scan=keep_scan, symmetry=symmetry)
+    mesh = await _submit(eng, "completion", request)
     return mesh_response(mesh, "completed", timer, b.name, b.version,
-                         {"X-Keep-Scan": "true" if keep_scan else "false"})
+                         {"X-Keep-Scan": "true" if keep_scan else "false", "X-Symmetry": symmetry_header(request.mirror)})
+
+
+def symmetry_header(mirror: Mirror | None) -> str:
+    """X-Symmetry: "off" (not asked), else whether the scan was mirrored, its plane in the scan's
+    coordinates and the plane's support."""
+    if mirror is None:
+        return "off"
+    used = "mirrored" if mirror.supported() else "not mirrored"
+    return f"{used}; plane x={mirror.offset:.6g}; support={mirror.support:.3f}"
 
 
 @router.post("/octree", response_class=Response, responses=MESH_RESPONSE,

@@ -264,26 +264,35 @@ def test_complete_builds_the_training_input_octree_with_and_without_normals(clie
     from model.octree import scan_frame, scan_octree, validate
     from model.octree.batch import split_octree
     from model.octree.fuse import keep_scan
+    from model.octree.symmetry import symmetrize
 
     model, cfg, _ = exported("completion-aocnn")
     pts = partial_cloud(clouds)[::4]
     normals = clouds[-1][1][clouds[-1][0][:, 0] < np.quantile(clouds[-1][0][:, 0], 0.7)][::4]
     for name, data, given in (("scan.npz", _npz(pts, normals), normals), ("scan.npy", _npy(pts), None)):
-        tree = scan_octree(validate(pts, given), cfg.depth)
-        with torch.no_grad():
-            latent = model.encoder(OctreeTensors.from_octree(tree)).numpy()
-        out = split_octree(decode(TorchSteps(model.decoder), latent), neighbors=False)[0]
-        out.normalizations = [scan_frame(pts)]
-        for query, want_tree in (("", keep_scan(out, tree)), ("&keep_scan=false", out)):   # the default first
-            r = client.post(f"/v1/complete?format=ply{query}", files={"points": (name, data)})
-            assert r.status_code == 200, r.text
-            assert r.headers["x-keep-scan"] == ("false" if query else "true")
-            got = trimesh.load(io.BytesIO(r.content), file_type="ply", process=False)
-            m = surface_mesh(want_tree)
-            want = trimesh.Trimesh(m.vertices, m.faces, process=False)
-            assert len(want.faces) > 0 and np.allclose(got.bounds, want.bounds, atol=1e-3 * np.ptp(pts, 0).max())
-            assert got.area == pytest.approx(want.area, rel=1e-3)
-            assert r.headers["x-surface"] == "patches" and r.headers["x-mesh-closed"] == "false"  # the default
+        for symmetry in (True, False):
+            cloud = validate(pts, given)
+            if symmetry:
+                cloud, mirror = symmetrize(cloud)
+            tree = scan_octree(cloud, cfg.depth)
+            with torch.no_grad():
+                latent = model.encoder(OctreeTensors.from_octree(tree)).numpy()
+            out = split_octree(decode(TorchSteps(model.decoder), latent), neighbors=False)[0]
+            out.normalizations = [scan_frame(cloud.points)]
+            for query, want_tree in (("", keep_scan(out, tree)), ("&keep_scan=false", out)):   # the default first
+                query += "" if symmetry else "&symmetry=false"
+                r = client.post(f"/v1/complete?format=ply{query}", files={"points": (name, data)})
+                assert r.status_code == 200, r.text
+                assert r.headers["x-keep-scan"] == ("false" if "keep_scan" in query else "true")
+                assert r.headers["x-symmetry"] == ("off" if not symmetry else
+                                                   f"{'mirrored' if mirror.supported() else 'not mirrored'}; "
+                                                   f"plane x={mirror.offset:.6g}; support={mirror.support:.3f}")
+                got = trimesh.load(io.BytesIO(r.content), file_type="ply", process=False)
+                m = surface_mesh(want_tree)
+                want = trimesh.Trimesh(m.vertices, m.faces, process=False)
+                assert len(want.faces) > 0 and np.allclose(got.bounds, want.bounds, atol=1e-3 * np.ptp(pts, 0).max())
+                assert got.area == pytest.approx(want.area, rel=1e-3)
+                assert r.headers["x-surface"] == "patches" and r.headers["x-mesh-closed"] == "false"  # the default
 
 
 def test_complete_decodes_with_the_bundles_keep_scan_bias_only_when_it_keeps_the_scan(models_dir, exported, clouds,
@@ -305,8 +314,9 @@ def test_complete_decodes_with_the_bundles_keep_scan_bias_only_when_it_keeps_the
     scan = scan_octree(validate(pts, None), cfg.depth)
     want = ",".join(f"{d}:{n}" for d, n in enumerate(scan.leaves_per_depth()) if n)
     with make_client(root) as c:
-        kept = c.post("/v1/complete?format=ply", files={"points": ("scan.npy", _npy(pts))})
-        plain = c.post("/v1/complete?format=ply&keep_scan=false", files={"points": ("scan.npy", _npy(pts))})
+        kept = c.post("/v1/complete?format=ply&symmetry=false", files={"points": ("scan.npy", _npy(pts))})
+        plain = c.post("/v1/complete?format=ply&keep_scan=false&symmetry=false",
+                       files={"points": ("scan.npy", _npy(pts))})
     assert kept.status_code == plain.status_code == 200, (kept.text, plain.text)
     assert kept.headers["x-octree-leaves"] == want
     assert plain.headers["x-octree-leaves"] != want and int(plain.headers["x-mesh-faces"]) > 0

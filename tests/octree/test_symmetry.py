@@ -1,0 +1,89 @@
+"""Mirror symmetry of partial scans: the plane is found wherever the scan sits, asymmetric scans
+are left as they are, and the mirror image fills the side the scanner missed."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from model.data.shapes import generate
+from model.octree import PointCloud, validate
+from model.octree.metrics import mean_squared_distance, missing_part
+from model.octree.symmetry import MIN_SUPPORT, Mirror, find_mirror, mirror_cloud, symmetrize
+
+from .conftest import mesh_points
+
+SHIFT = np.array([3.7, -1.2, 0.4])     # the user's frame: the plane is not at x = 0
+
+
+@pytest.fixture(scope="module")
+def chair():
+    """A procedural chair (mirror-symmetric about x = 0 by construction) sampled with normals, moved
+    to SHIFT and scaled by 2.5."""
+    pts, nrm = mesh_points(generate("chair", 3), 30_000)
+    return pts * 2.5 + SHIFT, nrm
+
+
+def seen_part(pts: np.ndarray, right: float, up: float) -> np.ndarray:
+    """A partial scan as the scanner's views leave them: the part of the right side beyond
+    ``right`` and above ``up`` (shares of the extent from the middle) never seen, nor a band of
+    the left side's lower half."""
+    x, y = pts[:, 0] - SHIFT[0], pts[:, 1] - np.median(pts[:, 1])
+    return ~((x > right * np.ptp(x)) & (y > up * np.ptp(y))) & ~((x < -0.15 * np.ptp(x)) & (y < 0) & (y > -0.1 * np.ptp(y)))
+
+
+@pytest.mark.parametrize("right, up", [(0.0, 0.0), (0.1, 0.2), (0.3, 0.3)])
+def test_the_plane_of_a_symmetric_object_is_found_from_a_part_of_it(chair, right, up):
+    pts, _ = chair
+    seen = seen_part(pts, right, up)
+    m = find_mirror(pts[seen])
+    extent = np.ptp(pts, 0).max()
+    assert m.axis == 0 and abs(m.offset - SHIFT[0]) < 0.002 * extent
+    assert 0.5 < m.support < 0.95                           # what is missing has no image on the scan
+    assert find_mirror(pts[seen]) == m                      # deterministic
+    whole = find_mirror(pts)
+    assert abs(whole.offset - SHIFT[0]) < 0.002 * extent and whole.support > 0.95
+
+
+def test_the_mirror_image_fills_the_side_the_scanner_missed(chair):
+    pts, nrm = chair
+    seen = seen_part(pts, 0.4, 0.4)
+    cloud = validate(pts[seen], nrm[seen])
+    out, m = symmetrize(cloud)
+    assert m.support >= MIN_SUPPORT and m.supported()
+    assert len(out) == 2 * len(cloud) and np.array_equal(out.points[:len(cloud)], cloud.points)
+    missing = missing_part(pts, cloud.points, 0.02 * np.ptp(pts, 0).max())
+    assert len(missing) > 0.05 * len(pts)                    # the right side's top was not scanned
+    before = mean_squared_distance(missing, cloud.points)
+    after = mean_squared_distance(missing, out.points)
+    assert after < 0.05 * before                             # the mirror image covers it
+    mirrored = out.normals[len(cloud):]
+    assert np.allclose(mirrored[:, 0], -cloud.normals[:, 0]) and np.allclose(mirrored[:, 1:], cloud.normals[:, 1:])
+    twice = m.reflect(m.reflect(cloud.points))
+    assert np.allclose(twice, cloud.points)
+
+
+def test_an_asymmetric_scan_is_left_as_it_is():
+    """An L of two boxes: no plane across x maps most of it onto itself."""
+    body = trimesh.creation.box([1.0, 0.5, 0.5])
+    arm = trimesh.creation.box([0.3, 0.5, 1.2])
+    arm.apply_translation([0.35, 0.0, 0.85])
+    pts, nrm = mesh_points(trimesh.util.concatenate([body, arm]), 20_000)
+    cloud = validate(pts, nrm)
+    out, m = symmetrize(cloud)
+    assert m.support < MIN_SUPPORT and not m.supported()
+    assert out is cloud
+
+
+def test_bad_points_are_refused_and_degenerate_ones_have_no_support():
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        find_mirror(np.zeros((10, 2)))
+    with pytest.raises(ValueError, match="N >= 3"):
+        find_mirror(np.zeros((2, 3)))
+    assert find_mirror(np.ones((5, 3))).support == 0.0
+
+
+def test_mirror_cloud_of_a_given_plane():
+    cloud = PointCloud(np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]), np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
+    out = mirror_cloud(cloud, Mirror(0, 2.0, 1.0))
+    assert np.allclose(out.points[2:], [[3.0, 2.0, 3.0], [0.0, 5.0, 6.0]])
+    assert np.allclose(out.normals[2:], [[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
