@@ -71,9 +71,10 @@ def _mains():
     from bench.octree_build import main as bench_build_main
     from bench.octree_label_changes import main as bench_labels_main
     from bench.octree_versions import main as bench_versions_main
+    from bench.symmetry import main as bench_symmetry_main
     return {"model.data.contact_sheet": sheet_main, "bench.conv": bench_conv_main, "bench.coverage": bench_coverage_main,
             "bench.octree_build": bench_build_main, "bench.octree_label_changes": bench_labels_main,
-            "bench.octree_versions": bench_versions_main, "model.train": train_main, "model.evaluate": evaluate_main, "model.data": data_main,
+            "bench.octree_versions": bench_versions_main, "bench.symmetry": bench_symmetry_main, "model.train": train_main, "model.evaluate": evaluate_main, "model.data": data_main,
             "model.octree": octree_main, "model.results_table": table_main, "model.figures": figures_main,
             "model.curves": curves_main,
             "model.release": release_main, "model.calibrate": calibrate_main, "export": export_main,

@@ -8,7 +8,7 @@ import trimesh
 from model.data.shapes import generate
 from model.octree import PointCloud, validate
 from model.octree.metrics import mean_squared_distance, missing_part
-from model.octree.symmetry import MIN_SUPPORT, Mirror, find_mirror, mirror_cloud, symmetrize
+from model.octree.symmetry import MIN_SUPPORT, Mirror, _coarse_supports, find_mirror, mirror_cloud, symmetrize
 
 from .conftest import mesh_points
 
@@ -42,6 +42,30 @@ def test_the_plane_of_a_symmetric_object_is_found_from_a_part_of_it(chair, right
     assert find_mirror(pts[seen]) == m                      # deterministic
     whole = find_mirror(pts)
     assert abs(whole.offset - SHIFT[0]) < 0.002 * extent and whole.support > 0.95
+
+
+@pytest.mark.parametrize("right, up", [(0.0, 0.0), (0.3, 0.3), (1.0, 1.0)])
+def test_the_shortlisted_search_finds_the_plane_the_exhaustive_one_finds(chair, right, up):
+    """The voxel scoring only shortlists candidates: the plane and its support are those of the
+    reference search, which measures every candidate exactly (right = up = 1: the whole chair)."""
+    pts, _ = chair
+    part = pts[seen_part(pts, right, up)]
+    fast, ref = find_mirror(part), find_mirror(part, shortlist=None)
+    assert abs(fast.offset - ref.offset) < 1e-4 * np.ptp(pts, 0).max()
+    assert abs(fast.support - ref.support) < 1e-3
+
+
+def test_the_voxel_scores_peak_at_the_plane(chair):
+    pts, _ = chair
+    part = pts[seen_part(pts, 0.1, 0.2)]
+    lo, hi = part.min(0), part.max(0)
+    offsets = np.linspace(lo[0], hi[0], 81)
+    tol = 0.01 * np.linalg.norm(hi - lo)
+    scores = _coarse_supports(part, part[::10], 0, offsets, tol)
+    assert scores.shape == (81,) and np.all((scores >= 0) & (scores <= 1))
+    assert abs(offsets[np.argmax(scores)] - SHIFT[0]) <= offsets[1] - offsets[0]
+    exact = find_mirror(part, shortlist=None).support
+    assert abs(scores.max() - exact) < 0.1 and np.median(scores) < 0.5 * exact      # a peak, not a plateau
 
 
 def test_the_mirror_image_fills_the_side_the_scanner_missed(chair):
