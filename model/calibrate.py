@@ -36,7 +36,8 @@ from .networks.decoder import teacher_skips
 from .nn.tensors import OctreeTensors
 from .octree import SPLIT
 from .checkpoint import load_model
-from .evaluate import MISSING_GAP, category_means, decoded_points
+from .evaluate import MISSING_GAP, decoded_points
+from .results import category_means
 from .octree.metrics import chamfer_distance, missing_distance
 from .results_table import paired_difference
 from .train.completion import truth_view

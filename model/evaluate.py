@@ -48,6 +48,7 @@ from .nn.tensors import OctreeTensors
 from .octree import LEAF, Octree
 from .octree.metrics import chamfer_distance, mean_squared_distance, missing_part, sample_patches
 from .octree.batch import split_octree
+from .results import category_means
 from .octree.fuse import keep_scan
 from .octree.symmetry import MIN_SUPPORT
 from .preprocess import MaskSpec
@@ -406,14 +407,6 @@ def torch_segment(model, spec):
             logits = model.net(torch.from_numpy(mask_input(rgb, spec)[None])).numpy()
         return mask_output(logits[0, 0], rgb.shape[0], rgb.shape[1])
     return segment
-
-
-def category_means(categories: list[str], values: list[float]) -> dict[str, float]:
-    """The mean of ``values`` per category (``categories[i]`` is ``values[i]``'s), sorted by name."""
-    by: dict[str, list[float]] = {}
-    for c, v in zip(categories, values):
-        by.setdefault(c, []).append(v)
-    return {c: float(np.mean(by[c])) for c in sorted(by)}
 
 
 def mask_ious(photos: list, segment, spec) -> list[float]:

@@ -3,7 +3,8 @@
     python -m model.results_table BASE.json OTHER.json [...] [--bootstrap 10000] [--icp | --missing]
     python -m model.results_table RESULT.json [...] --surfaces
 
-Every file is written by ``python -m model.evaluate`` on the same split.  Besides the per-category
+Every file is written by ``python -m model.evaluate`` on the same split; ``A.json+B.json`` joins
+one model's results on several splits (the held-out seed's 780 shapes) into one.  Besides the per-category
 table, each result after the first is compared with the first shape by shape: the difference of
 category means with a 95% bootstrap interval (shapes resampled within categories) and how many
 shapes each side wins and how many tie, so that a gap can be told from test-set noise.  ``--icp`` compares the Chamfer distances after
@@ -26,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 from .cli import command_parser
+from .results import join_results
 
 
 @dataclass
@@ -53,6 +55,19 @@ def load_results(path: str | Path) -> dict:
     if not isinstance(res, dict) or "per_shape" not in res:
         raise ValueError(f"{path}: no per-shape rows; evaluate again with python -m model.evaluate")
     return res
+
+
+def load_joined(arg: str) -> dict:
+    """The result of one command-line argument: a results JSON, or several joined by ``+``
+    (``test.json+val.json+train.json``: one model on the splits of one dataset, see
+    :func:`model.results.join_results`)."""
+    if Path(arg).is_file() or "+" not in arg:
+        return load_results(arg)
+    return join_results([load_results(p) for p in arg.split("+")])
+
+
+def _label(arg: str) -> str:
+    return "+".join(Path(p).stem for p in arg.split("+")) if not Path(arg).is_file() else Path(arg).stem
 
 
 def _finite(value) -> bool:
@@ -155,8 +170,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = command_parser("python -m model.results_table", __doc__, [
         "python -m model.results_table aocnn.json ocnn-patch.json --bootstrap 10000",
         "python -m model.results_table img.json img-psg.json --icp",
-        "python -m model.results_table image.json completion.json --surfaces"])
-    ap.add_argument("results", nargs="+", help="results JSONs of python -m model.evaluate; the first is the base")
+        "python -m model.results_table image.json completion.json --surfaces",
+        "python -m model.results_table base_test.json+base_val.json other_test.json+other_val.json --missing"])
+    ap.add_argument("results", nargs="+",
+                    help="results JSONs of python -m model.evaluate, the first the base; A.json+B.json joins the "
+                         "results of one model on several splits into one")
     ap.add_argument("--bootstrap", type=int, default=10_000, help="bootstrap draws for the intervals (default 10000)")
     ap.add_argument("--icp", action="store_true", help="compare the Chamfer distances after ICP alignment")
     ap.add_argument("--missing", action="store_true",
@@ -167,8 +185,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.bootstrap < 100:
             raise ValueError("--bootstrap must be at least 100")
-        results = [load_results(p) for p in args.results]
-        labels = [Path(p).stem + (f" (oracle {r['oracle']})" if r.get("oracle", "none") != "none" else "")
+        results = [load_joined(p) for p in args.results]
+        labels = [_label(p) + (f" (oracle {r['oracle']})" if r.get("oracle", "none") != "none" else "")
                   for r, p in zip(results, args.results)]
         if args.icp + args.missing + args.surfaces > 1:
             raise ValueError("give one of --icp, --missing and --surfaces")
