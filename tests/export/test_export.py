@@ -171,9 +171,11 @@ def test_completion_end_to_end_matches_torch(exported, clouds):
     pts, nrm = clouds[-1]
     keep = pts[:, 0] < np.quantile(pts[:, 0], 0.6)
     octree = build_octree((pts[keep], None), cfg.depth)          # normals estimated, as the service does
-    a = runtime.decode(runtime.encode_octree(octree))
+    latent_o = runtime.encode_octree(octree)
     with torch.no_grad():
         latent_t = model.encoder(OctreeTensors.from_octree(octree)).numpy()
+    assert np.abs(latent_o - latent_t).max() <= TOL
+    a = runtime.decode(latent_t)               # the same code in both: see the image-to-shape test
     b = decode(TorchSteps(model.decoder), latent_t, 2, 4)
     pa, pb = sample_patches(a, 64, seed=0), sample_patches(b, 64, seed=0)
     assert len(pa) > 100
