@@ -30,6 +30,14 @@ def _finite(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
+def _setting(result: dict, key: str):
+    """A setting of ``result`` as compared when joining: the photos' input without its counts."""
+    value = result.get(key)
+    if key == "input" and isinstance(value, dict):
+        return {k: v for k, v in value.items() if k != "mask_sources"}
+    return value
+
+
 def join_results(results: list[dict]) -> dict:
     """One result holding the shapes of all ``results`` (the same model and settings on disjoint
     shapes, e.g. the splits of one dataset): rows concatenated, every per-category measure and its
@@ -40,7 +48,7 @@ def join_results(results: list[dict]) -> dict:
         raise ValueError("nothing to join")
     first = results[0]
     for r in results[1:]:
-        differ = [k for k in SETTINGS if r.get(k) != first.get(k)]
+        differ = [k for k in SETTINGS if _setting(r, k) != _setting(first, k)]
         if differ:
             raise ValueError(f"results to join differ in {', '.join(differ)}")
     rows = [row for r in results for row in r["per_shape"]]
@@ -50,6 +58,10 @@ def join_results(results: list[dict]) -> dict:
     if first.get("task") == "foreground":
         raise ValueError("the foreground network's results (mask IoU) are not joined: evaluate the photos at once")
     joined = {k: first[k] for k in SETTINGS if k in first}
+    if isinstance(first.get("input"), dict) and "mask_sources" in first["input"]:    # photos: where masks came from
+        sources = [r["input"].get("mask_sources", {}) for r in results]
+        joined["input"] = {**first["input"], "mask_sources": {
+            k: sum(s.get(k, 0) for s in sources) for k in sorted({k for s in sources for k in s})}}
     joined["split"] = "+".join(str(r.get("split")) for r in results)
     for count in ("shapes", "empty_outputs", "watertight_not_closed"):
         if count in first:

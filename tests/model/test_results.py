@@ -55,3 +55,13 @@ def test_the_command_pairs_joined_results(tmp_path, capsys):
     assert "**2.000**" in out and "**2.500**" in out                               # (1 + 2 + 3) / 3, shifted
     assert main([f"{files['base', 'test']}+{files['base', 'test']}"]) == 2
     assert "share shapes" in capsys.readouterr().err
+
+
+def test_photo_results_join_with_their_mask_sources_added():
+    photos = {"kind": "photos", "remove_background": "auto", "foreground_network": True}
+    a = split_result({"chair": [1.0]}, "test", input={**photos, "mask_sources": {"network": 2, "alpha": 1}})
+    b = split_result({"chair": [2.0]}, "val", input={**photos, "mask_sources": {"network": 4}})
+    assert join_results([a, b])["input"] == {**photos, "mask_sources": {"alpha": 1, "network": 6}}
+    c = split_result({"chair": [2.0]}, "val", input={**photos, "remove_background": "false", "mask_sources": {}})
+    with pytest.raises(ValueError, match="differ in input"):
+        join_results([a, c])
