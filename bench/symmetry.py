@@ -15,12 +15,12 @@ from __future__ import annotations
 
 import os
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from bench.surface import timed
 from model.cli import command_parser
 
 REPO = Path(__file__).resolve().parents[1]
@@ -38,22 +38,11 @@ class Comparison:
     reference_mirror: object
 
 
-def timed(fn, repeats: int) -> tuple[float, object]:
-    """Median seconds of ``fn()`` over ``repeats`` runs after a warm-up, and its result."""
-    out = fn()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times)), out
-
-
 def compare(name: str, points: np.ndarray, repeats: int) -> Comparison:
     from model.octree.symmetry import find_mirror
 
-    fast, fm = timed(lambda: find_mirror(points), repeats)
-    ref, rm = timed(lambda: find_mirror(points, shortlist=None), repeats)
+    fast, _, fm = timed(lambda: find_mirror(points), repeats)
+    ref, _, rm = timed(lambda: find_mirror(points, shortlist=None), repeats)
     return Comparison(name, len(points), fast, ref, fm, rm)
 
 

@@ -26,7 +26,8 @@ def category_means(categories: list[str], values: list[float]) -> dict[str, floa
     return {c: float(np.mean(by[c])) for c in sorted(by)}
 
 
-def _finite(value) -> bool:
+def finite(value) -> bool:
+    """Whether ``value`` is a measured number (not None, a flag, NaN or infinite)."""
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
@@ -67,13 +68,13 @@ def join_results(results: list[dict]) -> dict:
         if count in first:
             joined[count] = sum(int(r.get(count) or 0) for r in results)
     for m in [k[:-len("_category_mean")] for k in first if k.endswith("_category_mean")]:
-        kept = [row for row in rows if _finite(row.get(m))]
+        kept = [row for row in rows if finite(row.get(m))]
         joined[m] = category_means([row["category"] for row in kept], [row[m] for row in kept])
         joined[f"{m}_category_mean"] = float(np.mean(list(joined[m].values()))) if kept else None
     sizes = {}
     for k in ("truth_nodes", "decoded_nodes", "decoded_leaves"):
         weighted = [(r["octree"][k], r.get("shapes", len(r["per_shape"]))) for r in results
-                    if _finite(r.get("octree", {}).get(k))]
+                    if finite(r.get("octree", {}).get(k))]
         total = sum(n for _, n in weighted)
         sizes[k] = sum(v * n for v, n in weighted) / total if total else None
     joined["octree"] = sizes

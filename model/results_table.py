@@ -19,7 +19,6 @@ value and are left out of its pairs; the table counts them.  Results of the fore
 from __future__ import annotations
 
 import json
-import math
 import os
 import sys
 from dataclasses import dataclass
@@ -27,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 from .cli import command_parser
-from .results import join_results
+from .results import finite, join_results
 
 
 @dataclass
@@ -70,10 +69,6 @@ def _label(arg: str) -> str:
     return "+".join(Path(p).stem for p in arg.split("+")) if not Path(arg).is_file() else Path(arg).stem
 
 
-def _finite(value) -> bool:
-    return isinstance(value, (int, float)) and math.isfinite(value)
-
-
 def markdown_table(results: list[dict], labels: list[str], metric: str = "chamfer_x1e3") -> str:
     """Per-category test means, category mean, empty outputs and mean octree sizes, one row per result."""
     for r in results:
@@ -84,19 +79,19 @@ def markdown_table(results: list[dict], labels: list[str], metric: str = "chamfe
              "|---|" + "---|" * (len(cats) + 4)]
     for label, r in zip(labels, results):
         o = r["octree"]
-        cells = [f"{r[metric][c]:.2f}" if _finite(r[metric].get(c)) else "—" for c in cats]
+        cells = [f"{r[metric][c]:.2f}" if finite(r[metric].get(c)) else "—" for c in cats]
         mean = r.get(f"{metric}_category_mean")
-        mean_cell = f"**{mean:.3f}**" if _finite(mean) else "—"
-        decoded = f"{o['decoded_nodes']:.0f}" if _finite(o.get("decoded_nodes")) else "—"
-        truth = f"{o['truth_nodes']:.0f}" if _finite(o.get("truth_nodes")) else "—"
+        mean_cell = f"**{mean:.3f}**" if finite(mean) else "—"
+        decoded = f"{o['decoded_nodes']:.0f}" if finite(o.get("decoded_nodes")) else "—"
+        truth = f"{o['truth_nodes']:.0f}" if finite(o.get("truth_nodes")) else "—"
         lines.append(f"| {label} | " + " | ".join(cells) +
                      f" | {mean_cell} | {r.get('empty_outputs', 0)} | {decoded} | {truth} |")
     floor = results[0].get(f"input_{metric}")
     if isinstance(floor, dict):        # completion: what the partial input itself scores
-        cells = [f"{floor[c]:.2f}" if _finite(floor.get(c)) else "—" for c in cats]
+        cells = [f"{floor[c]:.2f}" if finite(floor.get(c)) else "—" for c in cats]
         mean = results[0].get(f"input_{metric}_category_mean")
         lines.append("| the partial input itself | " + " | ".join(cells) +
-                     f" | {f'**{mean:.3f}**' if _finite(mean) else '—'} | — | — | — |")
+                     f" | {f'**{mean:.3f}**' if finite(mean) else '—'} | — | — | — |")
     return "\n".join(lines)
 
 
@@ -107,9 +102,9 @@ def paired_difference(base: dict, other: dict, draws: int = 10_000, seed: int = 
     by default the same metric) over the shapes both results hold a value for, with a
     stratified bootstrap; ``higher_is_better`` for a measure such as the mask IoU."""
     other_metric = other_metric or metric
-    a = {(r["category"], r["shape_id"]): r.get(metric) for r in base["per_shape"] if _finite(r.get(metric))}
+    a = {(r["category"], r["shape_id"]): r.get(metric) for r in base["per_shape"] if finite(r.get(metric))}
     b = {(r["category"], r["shape_id"]): r.get(other_metric) for r in other["per_shape"]
-         if _finite(r.get(other_metric))}
+         if finite(r.get(other_metric))}
     common = sorted(set(a) & set(b))
     if not common:
         raise ValueError("the two results share no shapes with a value")
@@ -139,7 +134,7 @@ def mask_table(results: list[dict], labels: list[str]) -> str:
     lines = ["| run | " + " | ".join(cats) + " | **mean** | median | above 0.9 | photos |",
              "|---|" + "---|" * (len(cats) + 4)]
     for label, r in zip(labels, results):
-        cells = [f"{r['mask_iou'][c]:.3f}" if _finite(r["mask_iou"].get(c)) else "—" for c in cats]
+        cells = [f"{r['mask_iou'][c]:.3f}" if finite(r["mask_iou"].get(c)) else "—" for c in cats]
         lines.append(f"| {label} | " + " | ".join(cells) + f" | **{r['mask_iou_category_mean']:.3f}** | "
                      f"{r['mask_iou_median']:.3f} | {r['mask_iou_above_0.9']:.0%} | {r['shapes']} |")
     return "\n".join(lines)

@@ -51,20 +51,22 @@ class Mirror:
 
     def reflect(self, points: np.ndarray) -> np.ndarray:
         """``points`` (N, 3) reflected across the plane."""
-        out = np.array(points, dtype=np.float64, copy=True)
-        out[:, self.axis] = 2 * self.offset - out[:, self.axis]
-        return out
+        return _reflect(points, self.axis, self.offset)
 
 
-def _support(points: np.ndarray, tree: cKDTree, axis: int, offset: float, tol: float) -> tuple[float, np.ndarray]:
+def _reflect(points: np.ndarray, axis: int, offset: float) -> np.ndarray:
+    """A float64 copy of ``points`` (N, 3) reflected across the plane ``x[axis] = offset``."""
+    out = np.array(points, dtype=np.float64, copy=True)
+    out[:, axis] = 2 * offset - out[:, axis]
+    return out
+
+
+def _support(points: np.ndarray, tree: cKDTree, axis: int, offset: float, tol: float) -> float:
     """The support of the plane ``x[axis] = offset`` measured on ``points`` (a subset of the
-    scan in ``tree``), and which of them land on the scan."""
-    mirrored = points.copy()
-    mirrored[:, axis] = 2 * offset - mirrored[:, axis]
-    dist, _ = tree.query(mirrored, distance_upper_bound=tol)
-    hit = dist < tol
+    scan in ``tree``)."""
+    dist, _ = tree.query(_reflect(points, axis, offset), distance_upper_bound=tol)
     off_plane = np.abs(points[:, axis] - offset) > 2 * tol        # a point on the plane is its own image
-    return (float(hit[off_plane].mean()) if off_plane.any() else 0.0), hit & off_plane
+    return float((dist < tol)[off_plane].mean()) if off_plane.any() else 0.0
 
 
 def _dilate(grid: np.ndarray, reach: tuple[int, int, int]) -> np.ndarray:
@@ -135,10 +137,9 @@ def find_mirror(points: np.ndarray, axis: int = 0, tolerance: float = TOLERANCE,
         coarse = _coarse_supports(pts, sub, axis, offsets, tol)
         offsets = offsets[np.argsort(-coarse, kind="stable")[:max(shortlist, 1)]]
     tree = cKDTree(pts)
-    offset = float(offsets[int(np.argmax([_support(sub, tree, axis, c, tol)[0] for c in offsets]))])
+    offset = float(offsets[int(np.argmax([_support(sub, tree, axis, c, tol) for c in offsets]))])
     for _ in range(5):
-        mirrored = sub.copy()
-        mirrored[:, axis] = 2 * offset - mirrored[:, axis]
+        mirrored = _reflect(sub, axis, offset)
         dist, nearest = tree.query(mirrored, distance_upper_bound=tol)
         hit = dist < tol
         if hit.sum() < 3:
@@ -147,7 +148,7 @@ def find_mirror(points: np.ndarray, axis: int = 0, tolerance: float = TOLERANCE,
         offset += step
         if abs(step) < 1e-3 * tol:
             break
-    return Mirror(axis, offset, _support(sub, tree, axis, offset, tol)[0])
+    return Mirror(axis, offset, _support(sub, tree, axis, offset, tol))
 
 
 def mirror_cloud(cloud: PointCloud, mirror: Mirror) -> PointCloud:
