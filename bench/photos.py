@@ -176,15 +176,15 @@ def phone_timing(runtime, photos: list[tuple[bytes, np.ndarray]], repeats: int) 
 def real_meshes(folder: Path) -> list[tuple[str, str, trimesh.Trimesh]]:
     """(file name, category, mesh) of each of :data:`REAL_MESHES` found in ``folder``, the mesh
     turned y-up, centred, its longest bounding-box edge 1 (the generators' convention)."""
+    from model.data.layouts import y_up
+
     out = []
     for name, (category, up) in REAL_MESHES.items():
         path = folder / name
         if not path.is_file():
             continue
-        mesh = trimesh.load(path, force="mesh", process=False)
+        mesh = y_up(trimesh.load(path, force="mesh", process=False), up)     # the renders' convention
         v = mesh.vertices - (mesh.vertices.max(0) + mesh.vertices.min(0)) / 2
-        if up == "z":                                        # to the renders' y-up convention
-            v = v[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0])
         out.append((name, category, trimesh.Trimesh(v / np.ptp(v, axis=0).max(), mesh.faces, process=False)))
     return out
 

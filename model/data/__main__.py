@@ -1,10 +1,11 @@
-"""Build a training dataset (procedural shapes, or a ModelNet40, ShapeNet or 3D-R2N2 layout on
-disk) as per-shape records with a manifest, in one process or as shards; merge shard builds.
+"""Build a dataset (procedural shapes, a ModelNet40, ShapeNet or 3D-R2N2 layout on disk, or a
+folder of one's own mesh files to evaluate on) as per-shape records with a manifest, in one
+process or as shards; merge shard builds.
 
     python -m model.data build --out DIR --per-category N --depth D [--seed S] [--workers K]
                               [--categories chair table ...] [--views 24] [--partial 2]
-    python -m model.data build --out DIR --source modelnet40|shapenet|r2n2 --root PATH
-                              [--shapenet-root PATH] [--per-category N] --depth D ...
+    python -m model.data build --out DIR --source modelnet40|shapenet|r2n2|folder --root PATH
+                              [--shapenet-root PATH] [--per-category N] [--up z] --depth D ...
     python -m model.data build ... --shard K/N        (part K of N, 0 <= K < N; one job each)
     python -m model.data merge --out DIR SHARD_DIR [SHARD_DIR ...]
 
@@ -24,6 +25,7 @@ import time
 from ..octree.build import MAX_BUILD_DEPTH
 from .compare import compare_datasets
 from .dataset import SOURCES, BuildConfig, Shard, build_dataset, layout_tasks, merge_shards, procedural_tasks
+from .layouts import UP_AXES
 from .shapes import CATEGORIES, GENERATORS
 from ..cli import command_parser
 
@@ -40,7 +42,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     b.add_argument("--out", required=True, help="dataset folder (created; a partial build there is resumed)")
     b.add_argument("--source", choices=SOURCES, default="procedural",
                    help="procedural shapes (default) or a real dataset layout under --root")
-    b.add_argument("--root", help="dataset root for --source modelnet40, shapenet or r2n2")
+    b.add_argument("--root", help="dataset root for --source modelnet40, shapenet or r2n2; for --source folder, "
+                   "a folder of mesh files (OBJ, OFF, STL, PLY, GLB, glTF), each a test shape")
     b.add_argument("--shapenet-root", help="ShapeNetCore.v2 root holding the meshes of --source r2n2")
     b.add_argument("--per-category", type=int, default=None,
                    help="shapes per category (required for procedural; a cap for real datasets)")
@@ -52,6 +55,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     b.add_argument("--generator", type=int, choices=sorted(GENERATORS), default=1,
                    help="version of the procedural generators: " + "; ".join(f"{k}: {v}" for k, v in GENERATORS.items())
                         + " (default 1)")
+    b.add_argument("--up", choices=UP_AXES, default="y",
+                   help="real meshes: their up axis, turned to y, the procedural shapes' and ShapeNet's (default "
+                        "y: as read; ModelNet40's meshes are z-up)")
     b.add_argument("--views", type=int, default=24, help="renders per shape (default 24)")
     b.add_argument("--render-size", type=int, default=137, help="render side in pixels (default 137, 3D-R2N2's)")
     b.add_argument("--partial", type=int, default=2, help="partial scans per shape (default 2)")
@@ -90,6 +96,8 @@ def run(args: argparse.Namespace) -> dict:
         raise ValueError("--partial must be 0 or more")
     cats = tuple(args.categories) if args.categories else None
     if args.source == "procedural":
+        if args.up != "y":
+            raise ValueError("--up applies to real meshes only: the procedural shapes are y-up")
         if args.per_category is None:
             raise ValueError("--per-category is required for procedural shapes")
         if cats:
@@ -111,7 +119,7 @@ def run(args: argparse.Namespace) -> dict:
             raise ValueError(f"no shapes of splits {', '.join(args.splits)} among those asked for")
     cfg = BuildConfig(depth=args.depth, views=args.views, render_size=args.render_size,
                       partial_scans=args.partial, scan_resolution=args.scan_resolution, seed=args.seed,
-                      generator=args.generator)
+                      generator=args.generator, up=args.up)
     return build_dataset(args.out, tasks, cfg, workers=args.workers, progress=not args.quiet, shard=shard)
 
 

@@ -2,8 +2,9 @@
 
 A record holds the complete virtual scan (points, normals), the adaptive and the full octree at
 the dataset's depth, 3D-R2N2-style renders with their cameras, and partial scans for shape
-completion.  Shapes come from the procedural categories or from a real dataset layout
-(ModelNet40, ShapeNetCore.v2, 3D-R2N2); every source gives the same record format.
+completion.  Shapes come from the procedural categories, from a real dataset layout
+(ModelNet40, ShapeNetCore.v2, 3D-R2N2) or from a plain folder of mesh files (all of them test
+shapes: the models evaluated on one's own meshes); every source gives the same record format.
 """
 
 from __future__ import annotations
@@ -21,14 +22,14 @@ import trimesh
 from ..files import TEMP_PREFIX, write_atomic
 from ..octree import build_octree
 from ..octree.serialize import octree_from_arrays, octree_to_arrays
-from .layouts import iter_modelnet40, iter_r2n2, iter_shapenet, load_mesh
+from .layouts import iter_mesh_folder, iter_modelnet40, iter_r2n2, iter_shapenet, load_mesh, y_up
 from .partial import partial_from_scan
 from .render import metadata_row, render_views
 from .scanner import scan_detailed
 from .shapes import CATEGORIES, check_category, generate, split_of, stable_hash
 
 RECORD_VERSION = 1
-SOURCES = ("procedural", "modelnet40", "shapenet", "r2n2")
+SOURCES = ("procedural", "modelnet40", "shapenet", "r2n2", "folder")
 
 
 @dataclass(frozen=True)
@@ -42,13 +43,17 @@ class BuildConfig:
     scan_resolution: int = 160
     seed: int = 0
     generator: int = 1                               # procedural shapes: model.data.shapes.GENERATORS
+    up: str = "y"                                    # real meshes: their up axis, turned y-up (layouts.y_up)
 
     def settings(self) -> dict:
-        """The settings as the manifest stores them; the first generator is not named, so the
-        datasets built before there was a second keep their manifests and fingerprints."""
+        """The settings as the manifest stores them; the first generator and the y axis up are
+        not named, so the datasets built before either setting existed keep their manifests and
+        fingerprints."""
         d = asdict(self)
         if d["generator"] == 1:
             del d["generator"]
+        if d["up"] == "y":
+            del d["up"]
         return d
 
     def fingerprint(self) -> str:
@@ -87,6 +92,8 @@ def layout_tasks(source: str, root: str, per_category: int | None = None,
         recs = [(r, (), ()) for r in iter_modelnet40(root)]
     elif source == "shapenet":
         recs = [(r, (), ()) for r in iter_shapenet(root)]
+    elif source == "folder":
+        recs = [(r, (), ()) for r in iter_mesh_folder(root)]
     elif source == "r2n2":
         recs = [(r, tuple(str(p) for p in r.image_paths), tuple(tuple(_row(m)) for m in r.metadata))
                 for r in iter_r2n2(root, shapenet_root=shapenet_root)]
@@ -131,7 +138,7 @@ def scan_shape(task: ShapeTask, cfg: BuildConfig):
     steps of :func:`build_record`, also used to cut new partial scans from a built dataset's shapes."""
     rng = np.random.default_rng(stable_hash("record", task.source, task.category, task.shape_id, cfg.seed))
     mesh = (generate(task.category, task.index, cfg.seed, cfg.generator) if task.source == "procedural"
-            else load_mesh(task.mesh_path))
+            else y_up(load_mesh(task.mesh_path), cfg.up))
     mesh, mesh_norm = unit_mesh(mesh)
     return mesh, mesh_norm, scan_detailed(mesh, resolution=cfg.scan_resolution, rng=rng), rng
 

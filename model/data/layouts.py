@@ -1,4 +1,5 @@
-"""Discovery and loading of real dataset layouts: ModelNet40, ShapeNetCore.v2, 3D-R2N2.
+"""Discovery and loading of real dataset layouts: ModelNet40, ShapeNetCore.v2, 3D-R2N2, and a
+plain folder of mesh files.
 
 Walk a dataset root and yield dataclass records (category, shape id, split,
 paths) so that the dataset builder can treat real data like generated data.
@@ -9,6 +10,7 @@ reader for ModelNet's fused headers ("OFF490 518 0").
 from __future__ import annotations
 
 import csv
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -76,6 +78,52 @@ def iter_modelnet40(root: str | Path) -> Iterator[MeshRecord]:
                 yield MeshRecord(cls.name, f.stem, split, f)
     if not found:
         raise ValueError(f"{root} does not look like ModelNet40: no <class>/train|test/*.off files")
+
+
+UP_AXES = ("x", "y", "z")
+_TO_Y_UP = {"x": np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
+            "y": np.eye(3),
+            "z": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])}
+
+
+def y_up(mesh: trimesh.Trimesh, up: str) -> trimesh.Trimesh:
+    """``mesh``, whose up axis is ``up``, rotated so that it is y-up, the convention of the
+    generators, the renders and ShapeNet (ModelNet40's meshes are z-up): a rotation, so the
+    shape is unchanged; the mesh itself when it already is."""
+    if up not in _TO_Y_UP:
+        raise ValueError(f"up must be one of {', '.join(UP_AXES)}, got {up!r}")
+    if up == "y":
+        return mesh
+    return trimesh.Trimesh(vertices=np.asarray(mesh.vertices) @ _TO_Y_UP[up].T, faces=mesh.faces, process=False)
+
+
+MESH_SUFFIXES = (".obj", ".off", ".stl", ".ply", ".glb", ".gltf")
+"""The mesh files a plain folder (:func:`iter_mesh_folder`) is read for."""
+
+
+def folder_category(stem: str) -> str:
+    """The category of a mesh in a plain folder: the one of :data:`SYNSETS`'s categories its file
+    name names as a word ("mn40_chair_0001" -> "chair"), else "unknown"."""
+    words = {w for w in re.split(r"[^a-z]+", stem.lower()) if w}
+    named = sorted(words & set(SYNSETS))
+    return named[0] if len(named) == 1 else "unknown"
+
+
+def iter_mesh_folder(root: str | Path) -> Iterator[MeshRecord]:
+    """Yield every mesh file directly in ``root`` (:data:`MESH_SUFFIXES`, sorted) as a shape of
+    the test split: a folder of one's own meshes to evaluate the models on.  Its shape id is the
+    file's stem, its category :func:`folder_category`; ValueError when two files share a stem or
+    the folder holds no mesh."""
+    root = _check_root(Path(root), "mesh folder")
+    files = sorted(p for p in root.iterdir() if p.is_file() and p.suffix.lower() in MESH_SUFFIXES)
+    if not files:
+        raise ValueError(f"{root} holds no mesh files ({', '.join(MESH_SUFFIXES)})")
+    seen: dict[str, Path] = {}
+    for f in files:
+        if f.stem in seen:
+            raise ValueError(f"{seen[f.stem].name} and {f.name} in {root} share the shape id {f.stem!r}; rename one")
+        seen[f.stem] = f
+        yield MeshRecord(folder_category(f.stem), f.stem, "test", f)
 
 
 def read_split_csv(path: str | Path) -> dict[str, str]:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 from PIL import Image
 
 from model.data.__main__ import main
@@ -113,8 +114,11 @@ def test_real_layouts_build_records_of_the_same_format(tmp_path):
         Image.fromarray(np.full((137, 137, 4), 40 * i, np.uint8)).save(rend / f"{i:02d}.png")
     (rend / "rendering_metadata.txt").write_text("".join(f"{30 * i} 25 0 0.8 25\n" for i in range(3)))
     (rend / "renderings.txt").write_text("".join(f"{i:02d}.png\n" for i in range(3)))
+    folder = tmp_path / "mine"
+    _write(folder / "my_bracket.off", "OFF\n8 6 0\n" + CUBE_OFF_BODY)
     keys = None
-    for source, root, extra in (("modelnet40", mn, {}), ("r2n2", r2n2, {"shapenet_root": str(sn)})):
+    for source, root, extra in (("modelnet40", mn, {}), ("r2n2", r2n2, {"shapenet_root": str(sn)}),
+                                ("folder", folder, {})):
         tasks = layout_tasks(source, str(root), **extra)
         m = build_dataset(tmp_path / source, tasks, SMALL, progress=False)
         assert len(m["records"]) == len(tasks) > 0
@@ -122,6 +126,10 @@ def test_real_layouts_build_records_of_the_same_format(tmp_path):
         keys = set(rec.arrays) if keys is None else keys
         assert set(rec.arrays) == keys                                  # one record format
         assert rec.octree().depth == 5
+        if source == "folder":
+            assert [(r["category"], r["shape_id"], r["split"]) for r in m["records"]] == [("unknown", "my_bracket", "test")]
+            assert rec["images"].shape == (SMALL.views, SMALL.render_size, SMALL.render_size, 4)
+            assert len(rec["partial_offsets"]) == SMALL.partial_scans + 1
         if source == "r2n2":
             assert rec["images"].shape == (3, 137, 137, 4)
             assert np.allclose(rec["cameras"][:, 0], [0, 30, 60])
@@ -134,7 +142,8 @@ def test_cli_reports_bad_arguments_in_one_line(tmp_path):
                       (["--depth", "5"], "--per-category"),
                       (["--per-category", "1", "--categories", "spaceship"], "unknown categories"),
                       (["--source", "modelnet40", "--per-category", "1"], "--root"),
-                      (["--source", "modelnet40", "--root", str(tmp_path / "none")], "is not a directory")):
+                      (["--source", "modelnet40", "--root", str(tmp_path / "none")], "is not a directory"),
+                      (["--source", "folder", "--root", str(tmp_path)], "holds no mesh files")):
         proc = subprocess.run([sys.executable, "-m", "model.data", "build", "--out", str(tmp_path / "o"), *args],
                               cwd=REPO, capture_output=True, text=True, timeout=60)
         assert proc.returncode == 2, proc.stderr
@@ -160,6 +169,25 @@ def test_a_second_generator_build_names_it_and_a_first_keeps_its_old_manifest(tm
                            "modelnet40", "--root", str(tmp_path), "--generator", "2"],
                           cwd=REPO, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "--generator applies to --source procedural only" in proc.stderr
+
+
+def test_real_meshes_turned_y_up_name_it_and_the_default_keeps_old_fingerprints(tmp_path):
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    trimesh.creation.box(extents=(0.5, 0.5, 2.0)).export(folder / "post.stl")     # a z-up post
+    tasks = layout_tasks("folder", str(folder))
+    as_read = build_dataset(tmp_path / "y", tasks, SMALL, progress=False)
+    assert "up" not in as_read["config"] and as_read["config_fingerprint"] == SMALL.fingerprint()
+    settings = {k: v for k, v in dataclasses.asdict(SMALL).items() if k not in ("generator", "up")}
+    assert SMALL.fingerprint() == hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
+    turned = build_dataset(tmp_path / "z", tasks, dataclasses.replace(SMALL, up="z"), progress=False)
+    assert turned["config"]["up"] == "z" and turned["config_fingerprint"] != SMALL.fingerprint()
+    spans = {k: np.ptp(load_record(tmp_path / k / tasks[0].relpath)["points"], axis=0) for k in ("y", "z")}
+    assert spans["y"].argmax() == 2 and spans["z"].argmax() == 1          # the post stands along y once turned
+    assert np.allclose(np.sort(spans["y"]), np.sort(spans["z"]), atol=0.02)
+    proc = subprocess.run([sys.executable, "-m", "model.data", "build", "--out", str(tmp_path / "o"),
+                           "--per-category", "1", "--up", "z"], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "--up applies to real meshes only" in proc.stderr
 
 
 def test_two_shards_and_a_merge_equal_a_single_build_byte_for_byte(tmp_path):

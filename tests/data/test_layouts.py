@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from model.data.layouts import iter_modelnet40, iter_r2n2, iter_shapenet, load_mesh, read_off
+from model.data.layouts import (folder_category, iter_mesh_folder, iter_modelnet40, iter_r2n2, iter_shapenet,
+                                load_mesh, read_off, y_up)
 
 CUBE_OFF_BODY = "\n".join(
     ["-1 -1 -1", "1 -1 -1", "1 1 -1", "-1 1 -1", "-1 -1 1", "1 -1 1", "1 1 1", "-1 1 1",
@@ -49,6 +50,47 @@ def test_load_mesh_errors_and_scene(tmp_path):
     m = load_mesh(path)
     assert isinstance(m, trimesh.Trimesh) and len(m.faces) == 24
     assert np.isclose(m.bounds[1, 0], 3.5)
+
+
+def test_mesh_folder_yields_each_mesh_file_as_a_test_shape(tmp_path):
+    root = tmp_path / "mine"
+    _write(root / "mn40_chair_0001.off", "OFF8 6 0\n" + CUBE_OFF_BODY)
+    trimesh.creation.box().export(root / "Bracket.STL")
+    _write(root / "notes.txt", "not a mesh")
+    _write(root / "sub" / "table_1.off", "OFF\n8 6 0\n" + CUBE_OFF_BODY)        # only the folder itself is read
+    recs = list(iter_mesh_folder(root))
+    assert [(r.category, r.shape_id, r.split, r.mesh_path.name) for r in recs] == [
+        ("unknown", "Bracket", "test", "Bracket.STL"), ("chair", "mn40_chair_0001", "test", "mn40_chair_0001.off")]
+    assert np.isclose(load_mesh(recs[0].mesh_path).area, 6.0)              # the unit box, read as STL
+    trimesh.creation.box().export(root / "Bracket.obj")
+    with pytest.raises(ValueError, match="share the shape id 'Bracket'"):
+        list(iter_mesh_folder(root))
+    with pytest.raises(ValueError, match="holds no mesh files"):
+        list(iter_mesh_folder(_write(tmp_path / "empty" / "readme.md", "").parent))
+
+
+def test_folder_category_is_a_category_named_as_a_word():
+    assert folder_category("mn40_airplane_0003") == "airplane"
+    assert folder_category("Old-Chair 2") == "chair"
+    assert folder_category("chairman") == "unknown"                      # a word, not a substring
+    assert folder_category("chair_and_table") == "unknown"               # two named: neither
+    assert folder_category("stanford_bunny") == "unknown"
+
+
+def test_y_up_turns_the_named_axis_to_y_by_a_rotation():
+    tall = trimesh.creation.box(extents=(1.0, 2.0, 3.0))          # longest along z
+    for up, along in (("z", 2), ("x", 0)):
+        src = trimesh.creation.box(extents=np.roll((1.0, 2.0, 3.0), along - 2))
+        turned = y_up(src, up)
+        assert np.isclose(turned.extents[1], src.extents[along])   # the up axis now spans y
+        assert np.isclose(turned.volume, src.volume) and turned.is_winding_consistent
+        assert turned.volume > 0                                   # a rotation: the faces still face out
+    assert y_up(tall, "y") is tall
+    apex = trimesh.Trimesh(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], faces=[[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    assert np.allclose(y_up(apex, "z").vertices[3], [0, 1, 0])     # +z goes to +y
+    assert np.allclose(y_up(apex, "x").vertices[1], [0, 1, 0])     # +x goes to +y
+    with pytest.raises(ValueError, match="up must be one of"):
+        y_up(tall, "w")
 
 
 def test_modelnet40(tmp_path):
