@@ -220,7 +220,8 @@ def classify_output(classifier, octree, depth: int) -> tuple[str, float]:
     pts, face = trimesh.sample.sample_surface(mesh, 20_000, seed=0)
     normals = mesh.face_normals[face]
     o = classifier.bundle.octree
-    trees = [build_octree(PointCloud(pts @ r.T, normals @ r.T), o.depth, adaptive=o.adaptive,
+    cloud = PointCloud(pts, normals)
+    trees = [build_octree(cloud.rotated(r), o.depth, adaptive=o.adaptive,
                           full_depth=o.full_depth, adaptive_depth=o.adaptive_depth)
              for r in up_rotations("y")]
     probs = classifier.classify(classifier.encode_octree(merge_octrees(trees))).mean(0)

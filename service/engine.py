@@ -7,7 +7,7 @@ from __future__ import annotations
 import io
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from PIL import Image
@@ -17,8 +17,8 @@ from export.runtime import Runtime
 from model.decode import DECODED_NORMALIZATION
 from model.preprocess import Framed, MaskSpec, upload_mask
 from model.surface import DEFAULT_SURFACE, SURFACES, surface_mesh
-from model.octree import Octree, PointCloud, build_octree, scan_octree
-from model.octree.geometry import up_rotations
+from model.octree import Octree, build_octree, scan_octree
+from model.octree.geometry import to_y_up, up_rotations
 from model.octree.batch import merge_octrees, split_octree
 from model.octree.fuse import keep_scan
 from model.octree.symmetry import Mirror, symmetrize
@@ -58,6 +58,7 @@ class Request:
     keep_scan: bool = False            # completion: the output keeps the scan's patches where it has points
     symmetry: bool = False             # completion: a scan supported by its mirror plane is read with its mirror image
     mirror: Mirror | None = None
+    up: str = "y"                      # completion: the upload's up axis (turned to y for the network, the output back)
 
 
 @dataclass
@@ -198,7 +199,7 @@ class Engine:
                 loaded = shape_input(item.data, item.filename, o.depth, self.settings.max_points,
                                      self.settings.max_npz_bytes)
             with item.timer("octree_build"):       # the scan's frame, as the model was trained
-                cloud = loaded.cloud
+                cloud = loaded.cloud.rotated(to_y_up(item.up))      # upright, as the network was trained
                 if item.symmetry:
                     cloud, item.mirror = symmetrize(cloud)
                 return scan_octree(cloud, o.depth, adaptive=o.adaptive, full_depth=o.full_depth,
@@ -247,24 +248,27 @@ class Engine:
                 i, x = ready[k]
                 tree = place(tree, x, items[i])
                 try:
-                    out[i] = _mesh(tree, items[i].fmt, items[i].color, items[i].timer, items[i].surface, items[i].faces)
+                    out[i] = _mesh(tree, items[i].fmt, items[i].color, items[i].timer, items[i].surface, items[i].faces,
+                                   to_y_up(items[i].up).T)
                 except APIError as exc:
                     out[i] = exc
         return out
 
-    def classify(self, data: bytes, filename: str | None, vote: bool, timer: StageTimer) -> np.ndarray:
+    def classify(self, data: bytes, filename: str | None, vote: bool, timer: StageTimer, up: str = "y") -> np.ndarray:
         """Class probabilities (R, C) of a shape at R rotations about the bundle's up axis: 12 with
-        ``vote`` (the paper's test-time vote, 12x the work), else 1."""
+        ``vote`` (the paper's test-time vote, 12x the work), else 1; the shape first turned from its
+        up axis ``up`` to the model's."""
         served = self.model("classify")
         b = served.bundle
         o = b.octree
         with timer("decode_input"):
             loaded = shape_input(data, filename, o.depth, self.settings.max_points, self.settings.max_npz_bytes,
                                  "shape")
-        rotations = up_rotations(b.input.get("points", {}).get("up", "y"))[:None if vote else 1]
-        with timer("octree_build"):
-            c = loaded.cloud
-            trees = [build_octree(PointCloud(c.points @ r.T, c.normals @ r.T), o.depth, adaptive=o.adaptive,
+        model_up = b.input.get("points", {}).get("up", "y")
+        rotations = up_rotations(model_up)[:None if vote else 1]
+        with timer("octree_build"):            # from the upload's up axis to the model's
+            c = loaded.cloud.rotated(to_y_up(model_up).T @ to_y_up(up))
+            trees = [build_octree(c.rotated(r), o.depth, adaptive=o.adaptive,
                                   full_depth=o.full_depth, adaptive_depth=o.adaptive_depth,
                                   sample_spacing=loaded.sample_spacing,
                                   **({"threshold": o.threshold} if o.threshold else {}))
@@ -282,12 +286,17 @@ class Engine:
         return _mesh(tree, fmt, color, timer, surface, faces)
 
 
-def _mesh(octree, fmt: str, color: bool, timer: StageTimer, surface: str, faces: int | None = None) -> MeshFile:
+def _mesh(octree, fmt: str, color: bool, timer: StageTimer, surface: str, faces: int | None = None,
+          rotation: np.ndarray | None = None) -> MeshFile:
+    """The mesh file of a decoded octree, its vertices turned by ``rotation`` (back to the upload's
+    up axis) when given."""
     if not any(octree.leaves_per_depth()):
         raise APIError(422, "empty_output", "the model decoded no surface from this input",
                        "send a photo or scan of one object, centred, on a plain background")
     with timer("surface"):
         m = surface_mesh(octree, surface, faces=faces)
+        if rotation is not None and not np.array_equal(rotation, np.eye(3)):
+            m = replace(m, vertices=m.vertices @ rotation.T)
     with timer("mesh_encode"):
         return encode(m, octree, fmt, color)
 

@@ -10,6 +10,7 @@ Format = Literal["glb", "gltf", "ply", "obj"]
 Surface = Literal["watertight", "patches"]
 RemoveBackground = Literal["auto", "true", "false"]       # model.preprocess.REMOVE_BACKGROUND
 Debug = Literal["mask"]
+Up = Literal["y", "z"]                                     # model.octree.geometry.to_y_up
 
 
 class GraphInfo(BaseModel):

@@ -18,6 +18,7 @@ from typing import Iterator
 import numpy as np
 import trimesh
 
+from ..octree.geometry import AXES, to_y_up
 from .shapes import SYNSETS, split_from_key
 
 SYNSET_TO_CATEGORY: dict[str, str] = {v: k for k, v in SYNSETS.items()}
@@ -80,21 +81,17 @@ def iter_modelnet40(root: str | Path) -> Iterator[MeshRecord]:
         raise ValueError(f"{root} does not look like ModelNet40: no <class>/train|test/*.off files")
 
 
-UP_AXES = ("x", "y", "z")
-_TO_Y_UP = {"x": np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
-            "y": np.eye(3),
-            "z": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])}
+UP_AXES = AXES
 
 
 def y_up(mesh: trimesh.Trimesh, up: str) -> trimesh.Trimesh:
     """``mesh``, whose up axis is ``up``, rotated so that it is y-up, the convention of the
-    generators, the renders and ShapeNet (ModelNet40's meshes are z-up): a rotation, so the
-    shape is unchanged; the mesh itself when it already is."""
-    if up not in _TO_Y_UP:
-        raise ValueError(f"up must be one of {', '.join(UP_AXES)}, got {up!r}")
+    generators, the renders and ShapeNet (ModelNet40's meshes are z-up; :func:`to_y_up`): a
+    rotation, so the shape is unchanged; the mesh itself when it already is."""
+    rotation = to_y_up(up)
     if up == "y":
         return mesh
-    return trimesh.Trimesh(vertices=np.asarray(mesh.vertices) @ _TO_Y_UP[up].T, faces=mesh.faces, process=False)
+    return trimesh.Trimesh(vertices=np.asarray(mesh.vertices) @ rotation.T, faces=mesh.faces, process=False)
 
 
 MESH_SUFFIXES = (".obj", ".off", ".stl", ".ply", ".glb", ".gltf")

@@ -357,6 +357,19 @@ def axis_rotation(angle: float, axis: str = "y") -> np.ndarray:
     return r
 
 
+def to_y_up(up: str) -> np.ndarray:
+    """The 3x3 rotation that turns the axis ``up`` (x, y or z) into +y, the models' up axis: a
+    quarter turn about z (x up) or x (z up, the convention of CAD, scanners and ModelNet40), the
+    identity for y.  Its entries are exactly 0 and +-1, so points turned and turned back
+    (``p @ R.T``, then ``@ R``) are bit-identical."""
+    if up not in AXES:
+        raise ValueError(f"up must be one of {', '.join(AXES)}, got {up!r}")
+    if up == "y":
+        return np.eye(3)
+    axis, angle = ("z", np.pi / 2) if up == "x" else ("x", -np.pi / 2)
+    return np.round(axis_rotation(angle, axis))
+
+
 def up_rotations(up: str = "y", count: int = ROTATIONS) -> np.ndarray:
     """(count, 3, 3): the rotations by k * 360/count degrees about ``up``, k = 0..count-1."""
     return np.stack([axis_rotation(2 * np.pi * k / count, up) for k in range(count)])

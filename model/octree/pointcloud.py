@@ -27,6 +27,10 @@ class PointCloud:
     def __len__(self) -> int:
         return len(self.points)
 
+    def rotated(self, rotation: np.ndarray) -> PointCloud:
+        """The cloud turned by the 3x3 rotation ``rotation`` (points and normals alike)."""
+        return PointCloud(self.points @ rotation.T, self.normals @ rotation.T)
+
 
 LINE_TOLERANCE = 1e-4
 """A cloud whose spread across its main direction is below this share of its spread along it is a

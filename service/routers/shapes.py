@@ -18,7 +18,7 @@ from ..engine import Engine, Request
 from ..errors import ERROR_RESPONSES, APIError
 from ..meshes import FORMATS, MeshFile, choose_format
 from ..metrics import StageTimer
-from ..schemas import ClassifyResponse, ClassScore, Debug, Format, RemoveBackground, Surface
+from ..schemas import ClassifyResponse, ClassScore, Debug, Format, RemoveBackground, Surface, Up
 
 router = APIRouter(prefix="/v1", tags=["shapes"], dependencies=[Depends(require_key)])
 
@@ -59,9 +59,12 @@ KEEP_SCAN_Q = Query(True, description="true: where the scan has points the outpu
                     "adaptive octree), and the network's patches fill everywhere the scan has none, down to the "
                     "finest octants; false: the network's output alone (it re-draws the scanned parts too, coarser)")
 SYMMETRY_Q = Query(True, description="true: when the scan is mirror-symmetric across a left-right plane (x = c, "
-                   f"the scan upright with +Y up; at least {MIN_SUPPORT:.0%} of it landing on itself mirrored), it "
+                   f"the scan upright: +Y up, or +Z with up=z; at least {MIN_SUPPORT:.0%} of it landing on itself mirrored), it "
                    "is completed from itself and its mirror image, so a side the scanner missed starts from the "
                    "side it saw; X-Symmetry says what was found; false: the scan as sent")
+UP_Q = Query("y", description="the upload's up axis: y (the models' convention, as glTF and ShapeNet) or z (as CAD, "
+             "most scanners and ModelNet40); a z-up shape is turned upright for the networks, which know objects "
+             "standing on +Y, and a completed shape is turned back, so it comes in the upload's coordinates")
 DEBUG_Q = Query(None, description="mask: answer with the mask the framing used (an 8-bit greyscale PNG of the "
                 "image's size, 255 = object) instead of the mesh; 422 no_mask when there is none")
 
@@ -133,14 +136,14 @@ async def complete(points: UploadFile = File(..., description="PLY (ascii/binary
                                               "vertices, with or without normals"),
                    format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q, surface: Surface = SURFACE_Q,
                    faces: int | None = FACES_Q, color_by_depth: bool = COLOR_Q, keep_scan: bool = KEEP_SCAN_Q,
-                   symmetry: bool = SYMMETRY_Q, accept: str | None = Header(None),
+                   symmetry: bool = SYMMETRY_Q, up: Up = UP_Q, accept: str | None = Header(None),
                    eng: Engine = Depends(engine)) -> Response:
     b = eng.model("completion").bundle
     _check_faces(surface, faces)
     data, filename = await _read(points)
     timer = StageTimer(eng.metrics)
     request = Request(data, choose_format(format, accept), depth, color_by_depth, timer, filename, surface, faces,
-                      keep_scan=keep_scan, symmetry=symmetry)
+                      keep_scan=keep_scan, symmetry=symmetry, up=up)
     mesh = await _submit(eng, "completion", request)
     return mesh_response(mesh, "completed", timer, b.name, b.version,
                          {"X-Keep-Scan": "true" if keep_scan else "false", "X-Symmetry": symmetry_header(request.mirror)})
@@ -190,11 +193,12 @@ async def classify(response: Response, shape: UploadFile = File(..., description
                    top_k: int = Query(5, ge=1, le=50, description="how many categories to return"),
                    vote: bool = Query(False, description="average over 12 rotations about the up axis "
                                       "(the paper's test-time vote; 12x the work)"),
+                   up: Up = UP_Q,
                    eng: Engine = Depends(engine)) -> ClassifyResponse:
     b = eng.model("classify").bundle
     data, filename = await _read(shape)
     timer = StageTimer(eng.metrics)
-    probs = await eng.limiter.run(lambda: eng.classify(data, filename, vote, timer), eng.settings.timeout_s)
+    probs = await eng.limiter.run(lambda: eng.classify(data, filename, vote, timer, up), eng.settings.timeout_s)
     response.headers["Server-Timing"] = timer.header()
     mean, votes = probs.mean(0), np.bincount(probs.argmax(1), minlength=probs.shape[1])
     order = np.argsort(-mean, kind="stable")[:top_k]

@@ -135,6 +135,35 @@ def test_complete_accepts_every_point_format_and_answers_in_the_input_frame(clie
         assert np.abs(mesh.vertices.mean(0) - centre).max() < 0.5 * extent
 
 
+def test_complete_and_classify_turn_a_z_up_upload_upright_and_the_completed_shape_back(client, clouds):
+    from model.octree.geometry import to_y_up
+
+    turn = to_y_up("z")                                   # z-up coordinates -> the models' y-up ones
+    pts, normals = clouds[-1][0][::4] * 40.0, clouds[-1][1][::4]
+    upright = _npz(pts, normals)
+    lying = _npz(pts @ turn, normals @ turn)              # the same scan as a z-up scanner writes it
+    meshes = {}
+    for name, data, query in (("y", upright, ""), ("z", lying, "&up=z"), ("z as y", lying, "")):
+        r = client.post(f"/v1/complete?format=ply{query}", files={"points": ("s.npz", data)})
+        assert r.status_code == 200, r.text
+        meshes[name] = (trimesh.load(io.BytesIO(r.content), file_type="ply", process=False), r.headers["x-symmetry"])
+    (a, sym_a), (b, sym_b), (c, _) = meshes["y"], meshes["z"], meshes["z as y"]
+    assert sym_a == sym_b                                  # the plane x = c is the same plane in both frames
+    assert np.array_equal(a.faces, b.faces)
+    assert np.allclose(b.vertices @ turn.T, a.vertices, atol=1e-6)     # completed upright, answered z-up
+    assert len(c.vertices) != len(a.vertices) or not np.allclose(c.vertices @ turn.T, a.vertices, atol=1e-3)
+    probs = {}
+    for name, data, query in (("y", upright, ""), ("z", lying, "&up=z"), ("z as y", lying, "")):
+        r = client.post(f"/v1/classify?top_k=50{query}", files={"shape": ("s.npz", data)})
+        assert r.status_code == 200, r.text
+        probs[name] = {t["category"]: t["probability"] for t in r.json()["top"]}
+    assert probs["z"] == pytest.approx(probs["y"], abs=1e-6)
+    assert probs["z as y"] != pytest.approx(probs["y"], abs=1e-3)
+    for endpoint, field in (("complete", "points"), ("classify", "shape")):
+        r = client.post(f"/v1/{endpoint}?up=w", files={field: ("s.npz", upright)})
+        assert r.status_code == 422 and "up" in r.text
+
+
 def test_octree_endpoint_builds_the_adaptive_octree_of_a_mesh(client):
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=3.0)
     data = sphere.export(file_type="obj").encode() if isinstance(sphere.export(file_type="obj"), str) \
