@@ -107,6 +107,7 @@ function requestUrl(endpoint, format) {
     if (endpoint === 'image-to-shape') q.set('remove_background', $('remove-background').value);
     if (format) q.set('format', format);
   }
+  if ((endpoint === 'complete' || endpoint === 'classify') && $('up').value !== 'y') q.set('up', $('up').value);
   const s = q.toString();
   return `v1/${endpoint}${s ? `?${s}` : ''}`;
 }

@@ -92,6 +92,14 @@ def test_demo_page_in_chromium(browser, server, tmp_path):
         assert info.value.suggested_filename == f"octree.{fmt}"
         assert path.read_bytes().startswith(magic)
 
+    # a z-up scan: the page sends the up axis chosen to the completion endpoint
+    page.select_option("#up", "z")
+    with page.expect_request(lambda r: "/v1/complete" in r.url) as sent:
+        scan = run_example(page, "car_partial_scan.ply")
+    assert "up=z" in sent.value.url, sent.value.url
+    assert scan["loaded"] or "empty_output" in scan["status"], scan["status"]
+    page.select_option("#up", "y")
+
     shot = tmp_path / "demo.png"
     page.screenshot(path=str(shot), full_page=True)
     assert shot.stat().st_size > 10_000
