@@ -17,7 +17,7 @@ from export.runtime import Runtime
 from model.decode import DECODED_NORMALIZATION
 from model.preprocess import Framed, MaskSpec, upload_mask
 from model.surface import DEFAULT_SURFACE, SURFACES, surface_mesh
-from model.octree import Octree, build_octree, scan_octree
+from model.octree import Octree, PointCloud, build_octree, scan_octree
 from model.octree.geometry import to_y_up, up_rotations
 from model.octree.batch import merge_octrees, split_octree
 from model.octree.fuse import keep_scan
@@ -199,7 +199,7 @@ class Engine:
                 loaded = shape_input(item.data, item.filename, o.depth, self.settings.max_points,
                                      self.settings.max_npz_bytes)
             with item.timer("octree_build"):       # the scan's frame, as the model was trained
-                cloud = loaded.cloud.rotated(to_y_up(item.up))      # upright, as the network was trained
+                cloud = _upright(loaded.cloud, item.up)      # as the network was trained
                 if item.symmetry:
                     cloud, item.mirror = symmetrize(cloud)
                 return scan_octree(cloud, o.depth, adaptive=o.adaptive, full_depth=o.full_depth,
@@ -248,8 +248,9 @@ class Engine:
                 i, x = ready[k]
                 tree = place(tree, x, items[i])
                 try:
+                    back = None if items[i].up == "y" else to_y_up(items[i].up).T     # to the upload's up axis
                     out[i] = _mesh(tree, items[i].fmt, items[i].color, items[i].timer, items[i].surface, items[i].faces,
-                                   to_y_up(items[i].up).T)
+                                   back)
                 except APIError as exc:
                     out[i] = exc
         return out
@@ -267,7 +268,7 @@ class Engine:
         model_up = b.input.get("points", {}).get("up", "y")
         rotations = up_rotations(model_up)[:None if vote else 1]
         with timer("octree_build"):            # from the upload's up axis to the model's
-            c = loaded.cloud.rotated(to_y_up(model_up).T @ to_y_up(up))
+            c = _upright(loaded.cloud, up, model_up)
             trees = [build_octree(c.rotated(r), o.depth, adaptive=o.adaptive,
                                   full_depth=o.full_depth, adaptive_depth=o.adaptive_depth,
                                   sample_spacing=loaded.sample_spacing,
@@ -295,10 +296,15 @@ def _mesh(octree, fmt: str, color: bool, timer: StageTimer, surface: str, faces:
                        "send a photo or scan of one object, centred, on a plain background")
     with timer("surface"):
         m = surface_mesh(octree, surface, faces=faces)
-        if rotation is not None and not np.array_equal(rotation, np.eye(3)):
+        if rotation is not None:
             m = replace(m, vertices=m.vertices @ rotation.T)
     with timer("mesh_encode"):
         return encode(m, octree, fmt, color)
+
+
+def _upright(cloud: PointCloud, up: str, model_up: str = "y") -> PointCloud:
+    """An upload whose up axis is ``up`` turned to the model's up axis (itself when they agree)."""
+    return cloud if up == model_up else cloud.rotated(to_y_up(model_up).T @ to_y_up(up))
 
 
 def _share(items: list[Request], stage: str, seconds: float) -> None:

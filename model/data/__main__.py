@@ -23,9 +23,9 @@ import sys
 import time
 
 from ..octree.build import MAX_BUILD_DEPTH
+from ..octree.geometry import AXES
 from .compare import compare_datasets
 from .dataset import SOURCES, BuildConfig, Shard, build_dataset, layout_tasks, merge_shards, procedural_tasks
-from .layouts import UP_AXES
 from .shapes import CATEGORIES, GENERATORS
 from ..cli import command_parser
 
@@ -55,7 +55,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     b.add_argument("--generator", type=int, choices=sorted(GENERATORS), default=1,
                    help="version of the procedural generators: " + "; ".join(f"{k}: {v}" for k, v in GENERATORS.items())
                         + " (default 1)")
-    b.add_argument("--up", choices=UP_AXES, default="y",
+    b.add_argument("--up", choices=AXES, default="y",
                    help="real meshes: their up axis, turned to y, the procedural shapes' and ShapeNet's (default "
                         "y: as read; ModelNet40's meshes are z-up)")
     b.add_argument("--views", type=int, default=24, help="renders per shape (default 24)")

@@ -18,7 +18,7 @@ from typing import Iterator
 import numpy as np
 import trimesh
 
-from ..octree.geometry import AXES, to_y_up
+from ..octree.geometry import to_y_up
 from .shapes import SYNSETS, split_from_key
 
 SYNSET_TO_CATEGORY: dict[str, str] = {v: k for k, v in SYNSETS.items()}
@@ -79,9 +79,6 @@ def iter_modelnet40(root: str | Path) -> Iterator[MeshRecord]:
                 yield MeshRecord(cls.name, f.stem, split, f)
     if not found:
         raise ValueError(f"{root} does not look like ModelNet40: no <class>/train|test/*.off files")
-
-
-UP_AXES = AXES
 
 
 def y_up(mesh: trimesh.Trimesh, up: str) -> trimesh.Trimesh:

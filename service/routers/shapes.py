@@ -59,9 +59,9 @@ KEEP_SCAN_Q = Query(True, description="true: where the scan has points the outpu
                     "adaptive octree), and the network's patches fill everywhere the scan has none, down to the "
                     "finest octants; false: the network's output alone (it re-draws the scanned parts too, coarser)")
 SYMMETRY_Q = Query(True, description="true: when the scan is mirror-symmetric across a left-right plane (x = c, "
-                   f"the scan upright: +Y up, or +Z with up=z; at least {MIN_SUPPORT:.0%} of it landing on itself mirrored), it "
-                   "is completed from itself and its mirror image, so a side the scanner missed starts from the "
-                   "side it saw; X-Symmetry says what was found; false: the scan as sent")
+                   f"the scan upright: +Y up, or +Z with up=z; at least {MIN_SUPPORT:.0%} of it landing on itself "
+                   "mirrored), it is completed from itself and its mirror image, so a side the scanner missed starts "
+                   "from the side it saw; X-Symmetry says what was found; false: the scan as sent")
 UP_Q = Query("y", description="the upload's up axis: y (the models' convention, as glTF and ShapeNet) or z (as CAD, "
              "most scanners and ModelNet40); a z-up shape is turned upright for the networks, which know objects "
              "standing on +Y, and a completed shape is turned back, so it comes in the upload's coordinates")
