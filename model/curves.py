@@ -1,12 +1,18 @@
 """Training curves of runs: per loss term, the training loss (moving average) and the validation
-loss against the step, one panel per term, every run in its own colour.
+loss against the step, one panel per term, every run in its own colour; with ``--chamfer``, also
+the validation Chamfer distance of every validated step.
 
     python -m model.curves RUN [RUN ...] --out PNG [--labels NAME ...] [--terms total ...] [--window 50]
+        [--chamfer DATA [--per-category 4] [--resolution 128]]
 
 Reads each run folder's ``metrics.jsonl`` (written by ``python -m model.train``: a row per logged
 training step and per validation).  A run that was interrupted and resumed logs some steps twice;
 the last row of each (split, step) counts.  The legend gives each run's last step and its
-training time.
+training time.  ``--chamfer DATA`` measures the weights kept at each validated step
+(``RUN/steps/<step>/``) with :func:`model.evaluate.evaluate` on the first ``--per-category``
+validation shapes of each category of DATA (the panel ``chamfer_x1e3``: category mean x 10^3), keeps
+each figure beside its weights (``chamfer.json``, reused while the settings are the same) and
+prints the step with the lowest: the checkpoint chosen on the validation split.
 """
 
 from __future__ import annotations
@@ -76,6 +82,56 @@ def _wall_seconds(clocks: list[float]) -> float | None:
     return sum(a for a, b in zip(clocks, clocks[1:]) if b < a) + clocks[-1]
 
 
+CHAMFER_TERM = "chamfer_x1e3"
+
+
+def validation_chamfer(run: str | Path, data: str | Path, per_category: int = 4,
+                       resolution: int = 128) -> dict[int, float]:
+    """Step -> validation Chamfer distance (x 10^3, category mean) of each step a run kept its
+    weights at (``RUN/steps/<step>/``, :meth:`model.train.loop.Trainer.snapshot`), measured on the
+    first ``per_category`` shapes of each category of ``data``'s validation split (NaN where every
+    output was empty); each figure is kept in ``chamfer.json`` beside its weights and reused while
+    the settings and data are the same."""
+    from .evaluate import evaluate
+    from .files import json_text, sha256_file, write_atomic
+    from .train.config import STEPS_DIR
+
+    manifest = Path(data) / "manifest.json"
+    if not manifest.is_file():
+        raise ValueError(f"--chamfer {data}: no manifest.json (a dataset folder of python -m model.data build)")
+    settings = {"per_category": per_category, "resolution": resolution, "manifest_sha256": sha256_file(manifest)}
+    out: dict[int, float] = {}
+    for folder in sorted((Path(run) / STEPS_DIR).glob("*/model.json")):
+        folder = folder.parent
+        cached = folder / "chamfer.json"
+        if cached.is_file():
+            kept = json.loads(cached.read_text())
+            if kept.get("settings") == settings:
+                out[int(kept["step"])] = np.nan if kept[CHAMFER_TERM] is None else float(kept[CHAMFER_TERM])
+                continue
+        results = evaluate(str(folder), str(data), "val", resolution, per_category=per_category)
+        step = int(json.loads((folder / "model.json").read_text())["steps"])
+        value = results["chamfer_x1e3_category_mean"]        # None: every output was empty
+        write_atomic(cached, json_text({"step": step, CHAMFER_TERM: value, "shapes": results["shapes"],
+                                        "empty_outputs": results["empty_outputs"], "settings": settings}).encode())
+        out[step] = np.nan if value is None else float(value)
+    return out
+
+
+def with_chamfer(curves: RunCurves, chamfer: dict[int, float]) -> RunCurves:
+    """``curves`` with the validation term ``chamfer_x1e3`` (NaN at validated steps without a figure;
+    ``curves`` itself when there is no figure)."""
+    if not chamfer:
+        return curves
+    steps = curves.steps.get("val", np.array([], dtype=int))
+    extra = sorted(set(chamfer) - set(int(s) for s in steps))
+    if extra:
+        raise ValueError(f"{curves.name}: weights kept at steps {extra} that its metrics.jsonl never validated")
+    values = {split: dict(v) for split, v in curves.values.items()}
+    values.setdefault("val", {})[CHAMFER_TERM] = np.array([chamfer.get(int(s), np.nan) for s in steps])
+    return RunCurves(curves.name, {**curves.steps, "val": steps}, values, curves.seconds)
+
+
 def moving_average(values: np.ndarray, window: int) -> np.ndarray:
     """Mean of each value and the ``window - 1`` before it (fewer at the start); NaNs skipped."""
     if window < 1:
@@ -133,6 +189,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--labels", nargs="+", default=None, help="a name per run (default: the folder names)")
     ap.add_argument("--terms", nargs="+", default=None, help="loss terms to draw (default: every validated one)")
     ap.add_argument("--window", type=int, default=50, help="training rows averaged per point (default 50)")
+    ap.add_argument("--chamfer", default=None, metavar="DATA",
+                    help="also measure the weights kept at each validated step on this dataset's validation split")
+    ap.add_argument("--per-category", type=int, default=4,
+                    help="with --chamfer: validation shapes per category (default 4)")
+    ap.add_argument("--resolution", type=int, default=128,
+                    help="with --chamfer: the patch sampling grid (default 128, model.evaluate's)")
     args = ap.parse_args(argv)
     try:
         if args.labels is not None and len(args.labels) != len(args.runs):
@@ -140,7 +202,21 @@ def main(argv: list[str] | None = None) -> int:
         if args.window < 1:
             raise ValueError("--window must be at least 1")
         labels = args.labels or [None] * len(args.runs)
+        if args.per_category < 1 or args.resolution < 2:
+            raise ValueError("--per-category must be at least 1 and --resolution at least 2")
         curves = [read_curves(r, n) for r, n in zip(args.runs, labels)]
+        if args.chamfer is not None:
+            for i, run in enumerate(args.runs):
+                chamfer = validation_chamfer(run, args.chamfer, args.per_category, args.resolution)
+                curves[i] = with_chamfer(curves[i], chamfer)
+                if chamfer:
+                    measured = [k for k, v in chamfer.items() if np.isfinite(v)]
+                    best = (f"lowest at step {min(measured, key=lambda k: (chamfer[k], k))}" if measured
+                            else "every output empty")
+                    print(f"{curves[i].name}: validation Chamfer x10^3 " +
+                          ", ".join(f"{k}: {v:.3f}" for k, v in sorted(chamfer.items())) + f"; {best}")
+                else:
+                    print(f"{curves[i].name}: no weights kept at validated steps ({run}/steps)")
         terms = plot(curves, args.out, args.terms, args.window)
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)

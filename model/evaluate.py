@@ -1,7 +1,8 @@
 """Evaluate a trained network with the paper's protocol (sections 5.2 and 5.3).
 
     python -m model.evaluate RUN --data DIR [--split test] --out results.json [--mesh-dir DIR]
-                             [--resolution 128] [--limit N] [--oracle structure|all] [--icp] [--bundle BUNDLE_DIR]
+                             [--resolution 128] [--limit N] [--per-category N] [--oracle structure|all] [--icp]
+                             [--bundle BUNDLE_DIR]
                              [--photos [--remove-background auto|true|false]]
 
 Each shape is encoded (its octree for an autoencoder, a fixed view of its renders for an image
@@ -32,6 +33,7 @@ import dataclasses
 import os
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -54,6 +56,7 @@ from .octree.symmetry import MIN_SUPPORT
 from .preprocess import MaskSpec
 from .surface import DEFAULT_SURFACE, SURFACES, surface_mesh
 from .train.config import TrainConfig
+from .train.data import manifest_rows
 from .train.images import image_batch, photo_batch
 from .train.completion import truth_view
 from .train.tasks import TASKS, encode_with_guide
@@ -193,11 +196,22 @@ def _mean_or_none(values: list[float]) -> float | None:
     return float(np.mean(values)) if values else None
 
 
+def first_of_each(categories: list[str], n: int) -> np.ndarray:
+    """Indices of the first ``n`` items of each category in ``categories`` (one per item), ascending."""
+    seen: dict[str, int] = {}
+    keep = []
+    for i, c in enumerate(categories):
+        seen[c] = seen.get(c, 0) + 1
+        if seen[c] <= n:
+            keep.append(i)
+    return np.asarray(keep, dtype=np.int64)
+
+
 def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, limit: int | None = None,
              mesh_dir: str | None = None, batch_size: int = 8, seed: int = 0, oracle: str = "none",
              align: bool = False, bundle: str | None = None, normals: str = "given",
              surface: str = DEFAULT_SURFACE, photos: bool = False, remove_background: str = "auto",
-             keep_scan: bool = False, symmetry: float | None = None) -> dict:
+             keep_scan: bool = False, symmetry: float | None = None, per_category: int | None = None) -> dict:
     """The results dictionary written by the CLI (see the module docstring).  ``bundle``: encode
     and decode with this exported bundle in onnxruntime instead of the torch model.  ``normals``:
     completion inputs built with the scanner's normals or with estimated ones.  ``surface``: the
@@ -208,7 +222,8 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     keep the scan's own patches where it saw the shape (:func:`model.octree.fuse.keep_scan`, the
     service's ``keep_scan``).  ``symmetry``: completion inputs are read with their mirror image
     where its plane has at least this support (:mod:`model.octree.symmetry`, the service's
-    ``symmetry``)."""
+    ``symmetry``).  ``per_category``: only the first so many shapes of each category (of the
+    split's first ``limit``), a subset that every category is in."""
     if oracle not in ORACLES:
         raise ValueError(f"--oracle must be one of {', '.join(ORACLES)}")
     loaded = load_model(run)
@@ -233,6 +248,8 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         raise ValueError("--keep-scan goes with a completion model")
     if symmetry is not None and cfg.task != "completion":
         raise ValueError("--symmetry goes with a completion model")
+    if per_category is not None and (cfg.task in ("classify", "foreground") or per_category < 1):
+        raise ValueError("--per-category takes a number of shapes >= 1 and goes with a shape model")
     if cfg.task == "classify":
         return evaluate_classifier(model, cfg, run, split, limit, runtime=runtime, bundle=bundle)
     if cfg.task == "foreground":
@@ -252,6 +269,10 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         fill_bias = runtime.bundle.keep_scan_bias if runtime is not None else empty_bias_of(loaded.meta.get("keep_scan"))
     extra = {"normals": normals, "symmetry": symmetry} if completion else {}
     records = task.dataset(cfg, split, seed, points=20_000, limit=limit, **extra)
+    chosen = np.arange(len(records))
+    if per_category is not None:       # the dataset's rows are the manifest's, in its order
+        chosen = first_of_each([r["category"] for r in manifest_rows(Path(data), split, None, cfg.categories,
+                                                                       limit)[1]], per_category)
     metrics = ("chamfer_x1e3", "chamfer_icp_x1e3") if align else ("chamfer_x1e3",)
     surfaces = octree_decoder and model.decoder.has_plane(cfg.depth)
     if surfaces:
@@ -269,8 +290,8 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     sizes = {"decoded_nodes": [], "truth_nodes": [], "decoded_leaves": []}
     empty = 0
     t = time.perf_counter()
-    for s in range(0, len(records), batch_size):
-        idx = np.arange(s, min(len(records), s + batch_size))
+    for s in range(0, len(chosen), batch_size):
+        idx = chosen[s:s + batch_size]
         octree, _ = records.batch(idx)
         framing = [{}] * len(idx)
         guide = None
@@ -330,6 +351,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     results = {
         "run": str(run), "task": cfg.task, "arch": cfg.arch, "depth": cfg.depth, "split": split,
         "resolution": resolution, "bundle": bundle, "shapes": len(per_shape), "empty_outputs": empty, "oracle": oracle,
+        "per_category": per_category,
     }
     if photos:
         results["input"] = {"kind": "photos", "remove_background": remove_background,
@@ -481,6 +503,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--resolution", type=int, default=128,
                     help="patch sampling grid: one point per sub-patch of resolution^3 (default 128, the paper's)")
     ap.add_argument("--limit", type=int, default=None, help="evaluate at most this many shapes (default all)")
+    ap.add_argument("--per-category", type=int, default=None,
+                    help="only the first N shapes of each category (a smaller subset every category is in)")
     ap.add_argument("--oracle", choices=ORACLES, default="none",
                     help="diagnostic: decode with the true statuses ('structure') and planes ('all'); default none")
     ap.add_argument("--icp", action="store_true",
@@ -512,7 +536,8 @@ def main(argv: list[str] | None = None) -> int:
         results = evaluate(args.run, args.data, args.split, args.resolution, args.limit, args.mesh_dir,
                            oracle=args.oracle, align=args.icp, bundle=args.bundle, normals=args.normals,
                            surface=args.surface, photos=args.photos, remove_background=args.remove_background,
-                           keep_scan=args.keep_scan, symmetry=MIN_SUPPORT if args.symmetry else None)
+                           keep_scan=args.keep_scan, symmetry=MIN_SUPPORT if args.symmetry else None,
+                           per_category=args.per_category)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

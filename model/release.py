@@ -22,7 +22,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .files import atomic_path, json_text, sha256_file, write_atomic
+from .files import json_text, sha256_file, write_atomic
 from .cli import command_parser
 
 CHECKPOINT_FORMAT = 1
@@ -100,28 +100,17 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
     (provenance; its evaluation is added by :func:`record_evaluation`, measured on exactly these
     weights).  ``by_recipe=False``: the run was not trained by the recipe's commands, so none are
     recorded (its configuration and steps are)."""
-    import torch
-
-    from .train.config import INIT_FILE, half_precision, load_checkpoint
+    from .train.config import INIT_FILE, load_checkpoint, write_weights
 
     state = load_checkpoint(run / "checkpoint.pt")
     calibration, teacher = state.get("calibration"), state["config"].get("teacher")
     if calibration is None and teacher and Path(teacher).is_dir():
         from .train.config import read_run            # a refined image model keeps its teacher's calibrated decoder
         calibration = read_run(teacher).meta.get("calibration")
-    out.mkdir(parents=True, exist_ok=True)
-    weights = out / "model.pt"
-
-    with atomic_path(weights) as tmp:
-        torch.save(half_precision(state["model"]), tmp)
     manifest = json.loads((data / "manifest.json").read_text())
     meta = {
         "format": CHECKPOINT_FORMAT,
         "task": recipe.task,
-        "weights": weights.name,
-        "weights_sha256": sha256_file(weights),
-        "weights_dtype": "float16",
-        "parameters": int(sum(v.numel() for v in state["model"].values() if v.is_floating_point())),
         "config": {k: v for k, v in state["config"].items() if k not in ("data", "out", "progress")},
         "steps": state["step"],
         "init": json.loads((run / INIT_FILE).read_text()) if (run / INIT_FILE).is_file() else None,
@@ -139,8 +128,7 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
                  "manifest_sha256": sha256_file(data / "manifest.json")},
         "evaluation": None,
     }
-    write_atomic(out / "model.json", json_text(meta).encode())
-    return meta
+    return write_weights(out, state["model"], meta)
 
 
 def record_evaluation(out: Path, results: dict) -> dict:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import torch
 
-from ..files import sha256_file
+from ..files import atomic_path, json_text, sha256_file, write_atomic
 from ..preprocess import ImageSpec
 
 
@@ -122,6 +122,9 @@ def load_checkpoint(path: Path) -> dict:
     return state
 
 
+STEPS_DIR = "steps"
+"""The sub-folder of a run holding a checkpoint folder per validated step (:meth:`Trainer.snapshot`)."""
+
 LEGACY_DEFAULTS = {"structure_loss": "ce", "pred_hidden": 8, "decoder_blocks": 1, "task": "autoencoder"}
 """Settings of runs saved before the setting existed (the paper's values)."""
 
@@ -136,6 +139,20 @@ def half_precision(weights: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """A state dict with its floating tensors stored as float16 (how shipped checkpoints are kept:
     half the bytes; :func:`read_run` returns them as float32, and bundles are exported from them)."""
     return {k: v.half() if v.is_floating_point() else v for k, v in weights.items()}
+
+
+def write_weights(out: Path, weights: dict[str, torch.Tensor], meta: dict) -> dict:
+    """Write a checkpoint folder that :func:`read_run` reads: ``out/model.pt`` (``weights`` in half
+    precision) and ``out/model.json`` (``meta`` with the weights' file name, checksum, dtype and
+    parameter count added), each atomically, the weights first.  Returns the written meta."""
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "model.pt"
+    with atomic_path(path) as tmp:
+        torch.save(half_precision(weights), tmp)
+    meta = {**meta, "weights": path.name, "weights_sha256": sha256_file(path), "weights_dtype": "float16",
+            "parameters": int(sum(v.numel() for v in weights.values() if v.is_floating_point()))}
+    write_atomic(out / "model.json", json_text(meta).encode())
+    return meta
 
 
 @dataclass

@@ -18,7 +18,7 @@ import torch
 from torch import distributed as dist
 
 from ..files import atomic_path, json_text
-from .config import INIT_FILE, TrainConfig, config_from_dict, load_checkpoint, read_run
+from .config import INIT_FILE, STEPS_DIR, TrainConfig, config_from_dict, load_checkpoint, read_run, write_weights
 from .data import RecordSet
 from .tasks import TASKS, check_config
 
@@ -191,6 +191,17 @@ class Trainer:
                         "step": self.step, "torch_rng": torch.get_rng_state(), "cuda_rng": cuda_rng,
                         "config": asdict(self.cfg)}, tmp)
 
+    def snapshot(self, validation: dict[str, float]) -> None:
+        """Keep this step's weights as a checkpoint folder ``RUN/steps/<step>/`` (half precision,
+        with the validation losses): the validated steps a checkpoint can be chosen among
+        (``python -m model.curves --chamfer`` measures each)."""
+        if self.rank != 0:
+            return
+        config = {k: v for k, v in asdict(self.cfg).items() if k not in ("data", "out", "progress")}
+        weights = {k: v.cpu() for k, v in self.model.state_dict().items()}
+        write_weights(self.out / STEPS_DIR / f"{self.step:06d}", weights,
+                      {"config": config, "steps": self.step, "validation": validation})
+
     # -- batches ----------------------------------------------------------------------------------
     def batch_indices(self, step: int) -> np.ndarray:
         """This process's shapes of global step ``step``: a pure function of (seed, step), so a
@@ -310,6 +321,7 @@ class Trainer:
             if self.val_set is not None and due and self.rank == 0:   # one process validates
                 summary["val"] = self.validate()
                 self.log({"step": self.step, "split": "val", **summary["val"]})
+                self.snapshot(summary["val"])
             if self.step % self.cfg.ckpt_every == 0 or self.step == self.cfg.iters:
                 self.save()
 

@@ -1,5 +1,6 @@
 """Training curves: metrics rows read per split (a resumed run's repeated steps counted once),
-the moving average, the picture, and bad input refused in one line."""
+the moving average, the picture, the validation Chamfer distance of each kept step, and bad input
+refused in one line."""
 
 from __future__ import annotations
 
@@ -67,3 +68,41 @@ def test_the_picture_has_a_panel_per_term_and_bad_input_exits_2(tmp_path, capsys
     (tmp_path / "c" / "metrics.jsonl").write_text('{"step": 1}\n')
     assert main([str(tmp_path / "c"), "--out", str(tmp_path / "bad.png")]) == 2
     assert "metrics.jsonl:1: not a metrics row" in capsys.readouterr().err
+
+
+def test_chamfer_measures_each_kept_step_once_and_names_the_lowest(tiny_data, tmp_path, capsys):
+    """--chamfer: every validated step's weights measured on the validation split's first shapes of
+    each category, as model.evaluate measures them; kept beside the weights and reused while the
+    settings are the same; a panel of its own; the step with the lowest figure named."""
+    from model.evaluate import evaluate
+    from model.train.loop import TrainConfig, Trainer
+
+    run = tmp_path / "run"
+    Trainer(TrainConfig(data=str(tiny_data), depth=5, arch="aocnn", out=str(run), iters=16, batch_size=4,
+                        val_every=8, ckpt_every=8, latent=32, channels=4, progress=False)).run()
+    args = [str(run), "--chamfer", str(tiny_data), "--per-category", "1", "--resolution", "16"]
+    assert main([*args, "--terms", "total", "--out", str(tmp_path / "loss.png")]) == 0
+    capsys.readouterr()
+    assert main([*args, "--out", str(tmp_path / "c.png")]) == 0
+    printed = capsys.readouterr().out
+    kept = {s: json.loads((run / "steps" / s / "chamfer.json").read_text()) for s in ("000008", "000016")}
+    records = json.loads((tiny_data / "manifest.json").read_text())["records"]
+    categories = len({r["category"] for r in records if r["split"] == "val"})
+    for name, figure in kept.items():
+        direct = evaluate(str(run / "steps" / name), str(tiny_data), "val", 16, per_category=1)
+        assert figure["chamfer_x1e3"] == pytest.approx(direct["chamfer_x1e3_category_mean"])
+        assert figure["shapes"] == direct["shapes"] == categories and figure["step"] == int(name)
+        assert figure["chamfer_x1e3"] is not None and figure["empty_outputs"] == 0
+    best = min((8, 16), key=lambda s: kept[f"{s:06d}"]["chamfer_x1e3"])
+    assert f"lowest at step {best}" in printed and "chamfer_x1e3" in printed
+    assert Image.open(tmp_path / "c.png").width > 1.2 * Image.open(tmp_path / "loss.png").width   # its own panel
+    stamps = {s: (run / "steps" / s / "chamfer.json").stat().st_mtime_ns for s in kept}
+    assert main([*args, "--out", str(tmp_path / "again.png")]) == 0                 # reused, not measured again
+    assert stamps == {s: (run / "steps" / s / "chamfer.json").stat().st_mtime_ns for s in kept}
+    assert main([*args[:-1], "32", "--out", str(tmp_path / "finer.png")]) == 0      # new settings: measured again
+    assert json.loads((run / "steps" / "000008" / "chamfer.json").read_text())["settings"]["resolution"] == 32
+    for bad, needle in (([str(run), "--chamfer", str(tmp_path)], "no manifest.json"),
+                        ([*args[:4], "0"], "--per-category must be at least 1")):
+        assert main([*bad, "--out", str(tmp_path / "bad.png")]) == 2
+        err = capsys.readouterr().err
+        assert needle in err and err.count("\n") == 1 and not (tmp_path / "bad.png").exists()

@@ -284,6 +284,44 @@ def test_image_encoder_regressed_onto_an_autoencoders_latents_uses_its_decoder(t
         figure(str(tiny_data), [("s", str(tmp_path / "img")), ("t", str(tmp_path / "ae"))], split="train")
 
 
+def test_every_validated_step_keeps_its_weights_as_a_checkpoint_folder(tiny_data, tmp_path):
+    """Trainer.snapshot: RUN/steps/<step>/ at each validation, in half precision, loadable as a
+    checkpoint folder with the step and its validation losses; the final one is the run's weights."""
+    from model.checkpoint import load_model
+
+    trainer = Trainer(config(tiny_data, tmp_path / "run", iters=6, val_every=3, ckpt_every=2))
+    trainer.run()
+    assert sorted(p.name for p in (tmp_path / "run" / "steps").iterdir()) == ["000003", "000006"]
+    val = {r["step"]: r for r in map(json.loads, (tmp_path / "run" / "metrics.jsonl").read_text().splitlines())
+           if r["split"] == "val"}
+    early, final = (load_model(tmp_path / "run" / "steps" / s) for s in ("000003", "000006"))
+    assert (early.meta["steps"], final.meta["steps"]) == (3, 6)
+    assert final.meta["validation"]["total"] == pytest.approx(val[6]["total"])
+    assert final.meta["weights_dtype"] == "float16" and final.config.channels == 4
+    trained = trainer.model.state_dict()
+    for k, v in trained.items():
+        assert torch.equal(final.model.state_dict()[k], v.half().to(v.dtype)), k
+    assert not all(torch.equal(early.model.state_dict()[k], final.model.state_dict()[k]) for k in trained)
+
+
+def test_evaluate_per_category_takes_the_first_shapes_of_each_category(tiny_data, tmp_path):
+    from model.evaluate import first_of_each, main as evaluate_main
+
+    assert first_of_each(["a", "a", "b", "a", "c", "b", "b"], 2).tolist() == [0, 1, 2, 4, 5]
+    assert first_of_each(["a", "b"], 1).tolist() == [0, 1] and first_of_each([], 3).tolist() == []
+    Trainer(config(tiny_data, tmp_path / "run", iters=2)).run()
+    out = tmp_path / "e.json"
+    assert evaluate_main([str(tmp_path / "run"), "--data", str(tiny_data), "--split", "train", "--per-category", "1",
+                          "--resolution", "16", "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    rows = json.loads((tiny_data / "manifest.json").read_text())["records"]
+    train = [r for r in rows if r["split"] == "train"]
+    firsts = [next(r["shape_id"] for r in train if r["category"] == c) for c in ("airplane", "chair", "table")]
+    assert res["per_category"] == 1 and sorted(r["shape_id"] for r in res["per_shape"]) == sorted(firsts)
+    assert evaluate_main([str(tmp_path / "run"), "--data", str(tiny_data), "--per-category", "0",
+                          "--out", str(out)]) == 2
+
+
 def test_a_released_checkpoint_is_stored_in_half_precision_and_evaluated_as_stored(tiny_data, tmp_path):
     """model.release packages the run's weights as float16; the checkpoint folder loads as float32
     weights equal to the rounded ones, and its evaluation is recorded in model.json."""
