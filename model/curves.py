@@ -157,7 +157,7 @@ def plot(curves: list[RunCurves], out: str | Path, terms: list[str] | None = Non
     missing = [t for t in terms if t not in available]
     if missing:
         raise ValueError(f"no run logged {', '.join(missing)}; logged: {', '.join(sorted(available))}")
-    fig, axes = plt.subplots(1, len(terms), figsize=(4.2 * len(terms), 3.4), squeeze=False)
+    fig, axes = plt.subplots(1, len(terms), figsize=(4.2 * len(terms), 3.4), squeeze=False, sharex=True)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for ax, term in zip(axes[0], terms):
         for i, c in enumerate(curves):

@@ -2,12 +2,14 @@
 calibration, evaluation, and the checkpoint + provenance JSON under ``models/checkpoints/``.
 
     python -m model.release {image,completion,classify,foreground} --workdir DIR [--out models/checkpoints/<task>]
-        [--run RUN]
+        [--run RUN [--data DIR]]
 
 With ``--run``, an existing run (trained by hand: partly on a GPU, or resumed with other data) is
 packaged instead of training by the recipe; the dataset is still built (its manifest is the
 provenance, its test split the evaluation), and model.json records the run's own configuration
-and steps, with no recipe training command.
+and steps, with no recipe training command.  ``--data`` with ``--run`` names the dataset the run
+was trained on instead (a larger or deeper one than the recipe's: its manifest is then the
+provenance and its test split the evaluation, and no build command is recorded).
 
 Every step resumes: the dataset build skips finished records, training resumes from its
 checkpoint, so rerunning the same command after an interruption continues where it stopped.
@@ -95,11 +97,13 @@ RECIPES: dict[str, Recipe] = {
 }
 
 
-def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str], by_recipe: bool = True) -> dict:
+def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str], by_recipe: bool = True,
+            data_by_recipe: bool = True) -> dict:
     """Write ``out/model.pt`` (the plain state_dict in half precision) and ``out/model.json``
     (provenance; its evaluation is added by :func:`record_evaluation`, measured on exactly these
     weights).  ``by_recipe=False``: the run was not trained by the recipe's commands, so none are
-    recorded (its configuration and steps are)."""
+    recorded (its configuration and steps are); ``data_by_recipe=False``: nor was ``data`` built by
+    its build command (the manifest's settings are recorded)."""
     from .train.config import INIT_FILE, load_checkpoint, write_weights
 
     state = load_checkpoint(run / "checkpoint.pt")
@@ -123,7 +127,7 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
         "refine_command": ("python -m model.train " + " ".join(shlex.quote(c) for c in recipe.refine)
                            + " --teacher CALIBRATED_RUN") if recipe.refine and by_recipe else None,
         "data": {"build": manifest["config"], "source": "procedural",
-                 "build_command": "python -m model.data build " + " ".join(recipe.build),
+                 "build_command": "python -m model.data build " + " ".join(recipe.build) if data_by_recipe else None,
                  "splits": manifest.get("splits"),
                  "manifest_sha256": sha256_file(data / "manifest.json")},
         "evaluation": None,
@@ -140,6 +144,19 @@ def record_evaluation(out: Path, results: dict) -> dict:
     return meta
 
 
+def _dataset_problem(data: Path, run: Path) -> str | None:
+    """Why ``data`` cannot be the dataset of ``run`` (no manifest, another depth), or None."""
+    from .train.config import load_checkpoint
+
+    if not (data / "manifest.json").is_file():
+        return f"--data {data}: no manifest.json (a dataset folder of python -m model.data build)"
+    depth = json.loads((data / "manifest.json").read_text())["config"]["depth"]
+    config = load_checkpoint(run / "checkpoint.pt")["config"]
+    if config.get("task") != "foreground" and depth != config["depth"]:      # the foreground network reads renders
+        return f"--data {data} was built at depth {depth}, but {run} was trained at depth {config['depth']}"
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = command_parser("python -m model.release", __doc__, [
         "python -m model.release completion --workdir work/completion",
@@ -152,10 +169,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1, help="torch threads for training (default 1)")
     ap.add_argument("--run", default=None, help="package this run folder (its checkpoint.pt) instead of "
                     "training by the recipe")
+    ap.add_argument("--data", default=None, help="with --run: the dataset folder the run was trained on, "
+                    "evaluated on its test split, instead of building the recipe's")
     args = ap.parse_args(argv)
     recipe = RECIPES[args.model]
     work = Path(args.workdir)
-    data, results_path = work / "data", work / "test.json"
+    data, results_path = Path(args.data or work / "data"), work / "test.json"
     teacher = work / "teacher"
     run = work / ("student" if recipe.teacher else "run")
     final = work / "run-calibrated" if recipe.calibrate else run
@@ -176,8 +195,14 @@ def main(argv: list[str] | None = None) -> int:
         if trained != recipe.train[0]:
             print(f"python -m model.release: {final} is a {trained} run, not a {recipe.train[0]} run", file=sys.stderr)
             return 2
+    if args.data is not None:
+        problem = _dataset_problem(data, final) if args.run is not None else "--data goes with --run"
+        if problem:
+            print(f"python -m model.release: {problem}", file=sys.stderr)
+            return 2
     threads = ["--threads", str(args.threads), "--quiet"]
-    steps = [(build_main, ["build", "--out", str(data), "--workers", str(args.workers), "--quiet", *recipe.build])]
+    steps = [] if args.data else [(build_main, ["build", "--out", str(data), "--workers", str(args.workers),
+                                                "--quiet", *recipe.build])]
     if args.run is None:
         if recipe.teacher:
             steps.append((train_main, [*recipe.teacher, "--data", str(data), "--out", str(teacher), *threads]))
@@ -189,11 +214,13 @@ def main(argv: list[str] | None = None) -> int:
             steps.append((train_main, [*recipe.refine, "--data", str(data), "--out", str(work / "refined"), *threads,
                                        "--teacher", str(final)]))
             final = work / "refined"
+    work.mkdir(parents=True, exist_ok=True)
     for fn, fn_args in steps:
         code = fn(fn_args)
         if code:
             return code
-    package(final, data, out, recipe, sys.argv[1:] if argv is None else argv, by_recipe=args.run is None)
+    package(final, data, out, recipe, sys.argv[1:] if argv is None else argv, by_recipe=args.run is None,
+            data_by_recipe=args.data is None)
     code = evaluate_main([str(out), "--data", str(data), "--out", str(results_path), *recipe.evaluate])
     if code:
         return code
@@ -201,7 +228,9 @@ def main(argv: list[str] | None = None) -> int:
     ev = meta["evaluation"]
     figure = (f"test accuracy {ev['accuracy']:.4f} ({ev['voted_accuracy']:.4f} voted over 12 rotations)"
               if "voted_accuracy" in ev else f"test photos' mask IoU {ev['mask_iou_category_mean']:.4f}"
-              if "mask_iou_median" in ev else f"test Chamfer x1e3 {ev['chamfer_x1e3_category_mean']:.3f}")
+              if "mask_iou_median" in ev else "test Chamfer x1e3 " + (
+                  "none: every output was empty" if ev["chamfer_x1e3_category_mean"] is None
+                  else f"{ev['chamfer_x1e3_category_mean']:.3f}"))
     print(f"{out}: {meta['task']}, {meta['parameters']:,} parameters, {figure}")
     return 0
 

@@ -365,4 +365,39 @@ def test_release_packages_a_run_trained_by_hand_without_claiming_the_recipe(tiny
     assert "not a readable checkpoint" in capsys.readouterr().err
     assert release_main(["foreground", "--workdir", str(work), "--run", str(tmp_path / "run")]) == 2
     assert "not a foreground run" in capsys.readouterr().err
+    assert release_main(["foreground", "--workdir", str(work), "--data", str(tiny_data)]) == 2
+    assert "--data goes with --run" in capsys.readouterr().err
     assert not work.exists()
+
+
+def test_release_packages_a_run_with_the_dataset_it_was_trained_on(tiny_data, tmp_path, capsys):
+    """model.release --run RUN --data DIR: nothing is built; DIR's manifest is the provenance and its
+    test split the evaluation recorded in model.json.  A folder without a manifest or of another depth
+    is refused (exit 2, one line) before anything is written."""
+    from model.data.dataset import build_dataset, procedural_tasks
+    from model.release import main as release_main
+
+    from .conftest import TINY
+
+    data = tmp_path / "data"            # chairs: 4 shapes to train on, 2 of the test split
+    tasks = procedural_tasks(30, categories=("chair",))
+    build_dataset(data, tasks[:4] + [t for t in tasks if t.split == "test"][:2], TINY, workers=1, progress=False)
+    Trainer(config(data, tmp_path / "run", task="image", encoder="lenet", encoder_width=4, image_size=32,
+                   iters=2)).run()
+    work, out = tmp_path / "work", tmp_path / "shipped"
+    (tmp_path / "deeper").mkdir()
+    (tmp_path / "deeper" / "manifest.json").write_text(json.dumps({"config": {"depth": 6}}))
+    for folder, needle in ((tmp_path / "deeper", "built at depth 6, but"), (tmp_path, "no manifest.json")):
+        assert release_main(["image", "--workdir", str(work), "--run", str(tmp_path / "run"), "--data", str(folder),
+                             "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert needle in err and err.count("\n") == 1
+        assert not work.exists() and not out.exists()
+    assert release_main(["image", "--workdir", str(work), "--run", str(tmp_path / "run"), "--data", str(data),
+                         "--out", str(out)]) == 0
+    meta = json.loads((out / "model.json").read_text())
+    manifest = json.loads((data / "manifest.json").read_text())
+    assert meta["data"]["build"] == manifest["config"] and meta["data"]["build_command"] is None
+    assert meta["train_command"] is None and meta["steps"] == 2
+    assert meta["evaluation"]["split"] == "test" and meta["evaluation"]["shapes"] == 2
+    assert not (work / "data").exists() and "test Chamfer" in capsys.readouterr().out
