@@ -41,7 +41,7 @@ from .results import category_means
 from .octree.metrics import chamfer_distance, missing_distance
 from .results_table import paired_difference
 from .train.completion import truth_view
-from .train.config import KEEP_SCAN_FILE, MASK_GUIDE_FILE, load_checkpoint
+from .train.config import KEEP_SCAN_FILE, MASK_GUIDE_FILE, load_checkpoint, write_weights
 from .train.tasks import TASKS, encode_with_guide
 from .cli import command_parser
 
@@ -92,7 +92,8 @@ def fold_bias(decoder: OctreeDecoder, depth: int, bias: float) -> None:
 
 
 def calibrate(run: str, data: str, out: str, split: str = "val") -> dict:
-    """Write the calibrated copy of ``run`` to ``out``; returns the per-depth report."""
+    """Write the calibrated copy of ``run`` to ``out`` (a run folder's as a run folder, a checkpoint
+    folder's, such as a step a run kept, as a checkpoint folder); returns the per-depth report."""
     loaded = load_model(run)
     model, cfg = loaded.model, loaded.config
     if not isinstance(model.decoder, OctreeDecoder) or model.decoder.mode != "adaptive":
@@ -109,6 +110,11 @@ def calibrate(run: str, data: str, out: str, split: str = "val") -> dict:
         row["uncalibrated_predicted_over_true"] = round(float(z0.sum() / max(1, (labels == SPLIT).sum())), 4)
         report["depths"][str(d)] = row
         fold_bias(model.decoder, d, b)
+    if not (Path(run) / "checkpoint.pt").is_file():           # a checkpoint folder
+        meta = {k: v for k, v in loaded.meta.items() if not k.startswith("weights") and k != "parameters"}
+        write_weights(out_dir, model.state_dict(), {**meta, "calibration": report})
+        write_atomic(out_dir / "calibration.json", json_text(report).encode())
+        return report
     state = load_checkpoint(Path(run) / "checkpoint.pt")
     state["model"] = model.state_dict()
     state["calibration"] = report
@@ -272,8 +278,8 @@ def calibrate_mask_guide(run: str, data: str, split: str = "val", limit: int | N
 def main(argv: list[str] | None = None) -> int:
     ap = command_parser("python -m model.calibrate", __doc__, [
         "python -m model.calibrate runs/img --data data/procedural --out runs/img-cal"])
-    ap.add_argument("run", help="run folder of an aocnn decoder (autoencoder, image or completion model); with "
-                    "--keep-scan also a checkpoint folder; with --mask-guide a foreground run or checkpoint folder")
+    ap.add_argument("run", help="run folder or checkpoint folder (such as RUN/steps/<step>) of an aocnn decoder "
+                    "(autoencoder, image or completion model); with --mask-guide of a foreground network")
     ap.add_argument("--data", required=True, help="dataset folder the run was trained on")
     ap.add_argument("--out", default=None, help="folder for the calibrated copy of the run (split biases)")
     ap.add_argument("--split", default="val", choices=("train", "val"), help="split to calibrate on (default val)")

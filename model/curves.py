@@ -11,7 +11,7 @@ the last row of each (split, step) counts.  The legend gives each run's last ste
 training time.  ``--chamfer DATA`` measures the weights kept at each validated step
 (``RUN/steps/<step>/``) with :func:`model.evaluate.evaluate` on the first ``--per-category``
 validation shapes of each category of DATA (the panel ``chamfer_x1e3``: category mean x 10^3), keeps
-each figure beside its weights (``chamfer.json``, reused while the settings are the same) and
+each figure beside its weights (``chamfer.json``, reused while weights and settings are the same) and
 prints the step with the lowest: the checkpoint chosen on the validation split.
 """
 
@@ -91,7 +91,7 @@ def validation_chamfer(run: str | Path, data: str | Path, per_category: int = 4,
     weights at (``RUN/steps/<step>/``, :meth:`model.train.loop.Trainer.snapshot`), measured on the
     first ``per_category`` shapes of each category of ``data``'s validation split (NaN where every
     output was empty); each figure is kept in ``chamfer.json`` beside its weights and reused while
-    the settings and data are the same."""
+    the weights, the settings and the data are the same."""
     from .evaluate import evaluate
     from .files import json_text, sha256_file, write_atomic
     from .train.config import STEPS_DIR
@@ -104,16 +104,18 @@ def validation_chamfer(run: str | Path, data: str | Path, per_category: int = 4,
     for folder in sorted((Path(run) / STEPS_DIR).glob("*/model.json")):
         folder = folder.parent
         cached = folder / "chamfer.json"
+        weights = json.loads((folder / "model.json").read_text()).get("weights_sha256")
         if cached.is_file():
             kept = json.loads(cached.read_text())
-            if kept.get("settings") == settings:
+            if kept.get("settings") == settings and kept.get("weights_sha256") == weights:
                 out[int(kept["step"])] = np.nan if kept[CHAMFER_TERM] is None else float(kept[CHAMFER_TERM])
                 continue
         results = evaluate(str(folder), str(data), "val", resolution, per_category=per_category)
         step = int(json.loads((folder / "model.json").read_text())["steps"])
         value = results["chamfer_x1e3_category_mean"]        # None: every output was empty
         write_atomic(cached, json_text({"step": step, CHAMFER_TERM: value, "shapes": results["shapes"],
-                                        "empty_outputs": results["empty_outputs"], "settings": settings}).encode())
+                                        "empty_outputs": results["empty_outputs"], "settings": settings,
+                                        "weights_sha256": weights}).encode())
         out[step] = np.nan if value is None else float(value)
     return out
 

@@ -211,7 +211,8 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
              mesh_dir: str | None = None, batch_size: int = 8, seed: int = 0, oracle: str = "none",
              align: bool = False, bundle: str | None = None, normals: str = "given",
              surface: str = DEFAULT_SURFACE, photos: bool = False, remove_background: str = "auto",
-             keep_scan: bool = False, symmetry: float | None = None, per_category: int | None = None) -> dict:
+             keep_scan: bool = False, symmetry: float | None = None,
+             per_category: int | None = None) -> dict:
     """The results dictionary written by the CLI (see the module docstring).  ``bundle``: encode
     and decode with this exported bundle in onnxruntime instead of the torch model.  ``normals``:
     completion inputs built with the scanner's normals or with estimated ones.  ``surface``: the
@@ -271,8 +272,10 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     records = task.dataset(cfg, split, seed, points=20_000, limit=limit, **extra)
     chosen = np.arange(len(records))
     if per_category is not None:       # the dataset's rows are the manifest's, in its order
-        chosen = first_of_each([r["category"] for r in manifest_rows(Path(data), split, None, cfg.categories,
-                                                                       limit)[1]], per_category)
+        rows = manifest_rows(Path(data), split, None, cfg.categories, limit)[1]
+        if len(rows) != len(records):
+            raise ValueError(f"the {split} split has {len(records)} shapes but {len(rows)} manifest rows")
+        chosen = first_of_each([r["category"] for r in rows], per_category)
     metrics = ("chamfer_x1e3", "chamfer_icp_x1e3") if align else ("chamfer_x1e3",)
     surfaces = octree_decoder and model.decoder.has_plane(cfg.depth)
     if surfaces:

@@ -104,19 +104,19 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
     weights).  ``by_recipe=False``: the run was not trained by the recipe's commands, so none are
     recorded (its configuration and steps are); ``data_by_recipe=False``: nor was ``data`` built by
     its build command (the manifest's settings are recorded)."""
-    from .train.config import INIT_FILE, load_checkpoint, write_weights
+    from .train.config import INIT_FILE, read_run, write_weights
 
-    state = load_checkpoint(run / "checkpoint.pt")
-    calibration, teacher = state.get("calibration"), state["config"].get("teacher")
+    saved = read_run(run)                  # a run folder, or a checkpoint folder such as a step the run kept
+    config = saved.meta["config"]
+    calibration, teacher = saved.meta.get("calibration"), config.get("teacher")
     if calibration is None and teacher and Path(teacher).is_dir():
-        from .train.config import read_run            # a refined image model keeps its teacher's calibrated decoder
-        calibration = read_run(teacher).meta.get("calibration")
+        calibration = read_run(teacher).meta.get("calibration")    # a refined image model: its teacher's decoder
     manifest = json.loads((data / "manifest.json").read_text())
     meta = {
         "format": CHECKPOINT_FORMAT,
         "task": recipe.task,
-        "config": {k: v for k, v in state["config"].items() if k not in ("data", "out", "progress")},
-        "steps": state["step"],
+        "config": {k: v for k, v in config.items() if k not in ("data", "out", "progress")},
+        "steps": saved.meta["steps"],
         "init": json.loads((run / INIT_FILE).read_text()) if (run / INIT_FILE).is_file() else None,
         "calibration": calibration,
         "command": "python -m model.release " + " ".join(shlex.quote(c) for c in command),
@@ -132,7 +132,7 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
                  "manifest_sha256": sha256_file(data / "manifest.json")},
         "evaluation": None,
     }
-    return write_weights(out, state["model"], meta)
+    return write_weights(out, saved.weights, meta)
 
 
 def record_evaluation(out: Path, results: dict) -> dict:
@@ -145,15 +145,21 @@ def record_evaluation(out: Path, results: dict) -> dict:
 
 
 def _dataset_problem(data: Path, run: Path) -> str | None:
-    """Why ``data`` cannot be the dataset of ``run`` (no manifest, another depth), or None."""
-    from .train.config import load_checkpoint
+    """Why ``data`` cannot be the dataset of ``run`` (no manifest, another depth, or not the dataset
+    the run was trained on where that one is here to compare), or None."""
+    from .train.config import read_run
 
-    if not (data / "manifest.json").is_file():
+    manifest = data / "manifest.json"
+    if not manifest.is_file():
         return f"--data {data}: no manifest.json (a dataset folder of python -m model.data build)"
-    depth = json.loads((data / "manifest.json").read_text())["config"]["depth"]
-    config = load_checkpoint(run / "checkpoint.pt")["config"]
-    if config.get("task") != "foreground" and depth != config["depth"]:      # the foreground network reads renders
-        return f"--data {data} was built at depth {depth}, but {run} was trained at depth {config['depth']}"
+    depth = json.loads(manifest.read_text())["config"]["depth"]
+    config = read_run(run).config
+    if config.task != "foreground" and depth != config.depth:      # the foreground network reads renders
+        return f"--data {data} was built at depth {depth}, but {run} was trained at depth {config.depth}"
+    trained_on = Path(config.data) / "manifest.json" if config.data else None
+    here = config.task != "foreground" and trained_on is not None and trained_on.is_file()
+    if here and sha256_file(trained_on) != sha256_file(manifest):
+        return f"--data {data} is not the dataset {run} was trained on ({config.data})"
     return None
 
 
@@ -167,8 +173,8 @@ def main(argv: list[str] | None = None) -> int:
                     "(default models/checkpoints/<task>)")
     ap.add_argument("--workers", type=int, default=1, help="dataset build processes (default 1)")
     ap.add_argument("--threads", type=int, default=1, help="torch threads for training (default 1)")
-    ap.add_argument("--run", default=None, help="package this run folder (its checkpoint.pt) instead of "
-                    "training by the recipe")
+    ap.add_argument("--run", default=None, help="package this run folder (its checkpoint.pt), or checkpoint folder "
+                    "such as a step a run kept (RUN/steps/<step>), instead of training by the recipe")
     ap.add_argument("--data", default=None, help="with --run: the dataset folder the run was trained on, "
                     "evaluated on its test split, instead of building the recipe's")
     args = ap.parse_args(argv)
@@ -185,12 +191,12 @@ def main(argv: list[str] | None = None) -> int:
     from .train.__main__ import main as train_main
 
     if args.run is not None:                       # a run trained by hand: checked before anything is built
-        from .train.config import load_checkpoint
+        from .train.config import read_run
         final = Path(args.run)
         try:
-            trained = load_checkpoint(final / "checkpoint.pt")["config"].get("task")
+            trained = read_run(final).config.task
         except (FileNotFoundError, ValueError) as exc:
-            print(f"python -m model.release: {exc} (--run takes a run folder of python -m model.train)", file=sys.stderr)
+            print(f"python -m model.release: --run: {exc}", file=sys.stderr)
             return 2
         if trained != recipe.train[0]:
             print(f"python -m model.release: {final} is a {trained} run, not a {recipe.train[0]} run", file=sys.stderr)

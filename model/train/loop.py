@@ -197,7 +197,7 @@ class Trainer:
         (``python -m model.curves --chamfer`` measures each)."""
         if self.rank != 0:
             return
-        config = {k: v for k, v in asdict(self.cfg).items() if k not in ("data", "out", "progress")}
+        config = {k: v for k, v in asdict(self.cfg).items() if k not in ("out", "progress")}
         weights = {k: v.cpu() for k, v in self.model.state_dict().items()}
         write_weights(self.out / STEPS_DIR / f"{self.step:06d}", weights,
                       {"config": config, "steps": self.step, "validation": validation})

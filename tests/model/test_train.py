@@ -302,6 +302,20 @@ def test_every_validated_step_keeps_its_weights_as_a_checkpoint_folder(tiny_data
     for k, v in trained.items():
         assert torch.equal(final.model.state_dict()[k], v.half().to(v.dtype)), k
     assert not all(torch.equal(early.model.state_dict()[k], final.model.state_dict()[k]) for k in trained)
+    # a kept step is calibrated and packaged like a run: the checkpoint chosen on the validation split
+    from model.calibrate import calibrate
+    from model.release import RECIPES, package
+
+    report = calibrate(str(tmp_path / "run" / "steps" / "000003"), str(tiny_data), str(tmp_path / "cal"))
+    calibrated = load_model(tmp_path / "cal")
+    assert calibrated.meta["calibration"] == report and calibrated.meta["steps"] == 3
+    moved = [k for k, v in calibrated.model.state_dict().items() if not torch.equal(v, early.model.state_dict()[k])]
+    assert moved and all(k.startswith("decoder.pred.") and k.endswith(".bias") for k in moved)
+    meta = package(tmp_path / "cal", tiny_data, tmp_path / "shipped", RECIPES["completion"], ["completion"],
+                   by_recipe=False)
+    assert meta["steps"] == 3 and meta["calibration"] == report
+    shipped = load_model(tmp_path / "shipped").model.state_dict()
+    assert all(torch.equal(shipped[k], v) for k, v in calibrated.model.state_dict().items())
 
 
 def test_evaluate_per_category_takes_the_first_shapes_of_each_category(tiny_data, tmp_path):
@@ -358,7 +372,7 @@ def test_release_packages_a_run_trained_by_hand_without_claiming_the_recipe(tiny
     assert meta["steps"] == 2 and meta["config"]["iters"] == 2 and meta["command"].endswith("--run run")
     work = tmp_path / "work"
     assert release_main(["foreground", "--workdir", str(work), "--run", str(tmp_path / "nothing")]) == 2
-    assert "checkpoint.pt not found" in capsys.readouterr().err
+    assert "neither a run folder (checkpoint.pt) nor a checkpoint folder" in capsys.readouterr().err
     (tmp_path / "damaged").mkdir()
     (tmp_path / "damaged" / "checkpoint.pt").write_bytes(b"not a checkpoint")
     assert release_main(["foreground", "--workdir", str(work), "--run", str(tmp_path / "damaged")]) == 2
@@ -387,7 +401,8 @@ def test_release_packages_a_run_with_the_dataset_it_was_trained_on(tiny_data, tm
     work, out = tmp_path / "work", tmp_path / "shipped"
     (tmp_path / "deeper").mkdir()
     (tmp_path / "deeper" / "manifest.json").write_text(json.dumps({"config": {"depth": 6}}))
-    for folder, needle in ((tmp_path / "deeper", "built at depth 6, but"), (tmp_path, "no manifest.json")):
+    for folder, needle in ((tmp_path / "deeper", "built at depth 6, but"), (tmp_path, "no manifest.json"),
+                           (tiny_data, "is not the dataset")):
         assert release_main(["image", "--workdir", str(work), "--run", str(tmp_path / "run"), "--data", str(folder),
                              "--out", str(out)]) == 2
         err = capsys.readouterr().err
