@@ -104,14 +104,15 @@ def validation_chamfer(run: str | Path, data: str | Path, per_category: int = 4,
     for folder in sorted((Path(run) / STEPS_DIR).glob("*/model.json")):
         folder = folder.parent
         cached = folder / "chamfer.json"
-        weights = json.loads((folder / "model.json").read_text()).get("weights_sha256")
+        meta = json.loads((folder / "model.json").read_text())
+        weights = meta.get("weights_sha256")
         if cached.is_file():
             kept = json.loads(cached.read_text())
             if kept.get("settings") == settings and kept.get("weights_sha256") == weights:
                 out[int(kept["step"])] = np.nan if kept[CHAMFER_TERM] is None else float(kept[CHAMFER_TERM])
                 continue
         results = evaluate(str(folder), str(data), "val", resolution, per_category=per_category)
-        step = int(json.loads((folder / "model.json").read_text())["steps"])
+        step = int(meta["steps"])
         value = results["chamfer_x1e3_category_mean"]        # None: every output was empty
         write_atomic(cached, json_text({"step": step, CHAMFER_TERM: value, "shapes": results["shapes"],
                                         "empty_outputs": results["empty_outputs"], "settings": settings,

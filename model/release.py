@@ -23,9 +23,13 @@ import shlex
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .files import json_text, sha256_file, write_atomic
 from .cli import command_parser
+
+if TYPE_CHECKING:
+    from .train.config import TrainConfig
 
 CHECKPOINT_FORMAT = 1
 
@@ -144,16 +148,13 @@ def record_evaluation(out: Path, results: dict) -> dict:
     return meta
 
 
-def _dataset_problem(data: Path, run: Path) -> str | None:
+def _dataset_problem(data: Path, run: Path, config: TrainConfig) -> str | None:
     """Why ``data`` cannot be the dataset of ``run`` (no manifest, another depth, or not the dataset
-    the run was trained on where that one is here to compare), or None."""
-    from .train.config import read_run
-
+    the run was trained on where that one is here to compare), or None; ``config`` is the run's."""
     manifest = data / "manifest.json"
     if not manifest.is_file():
         return f"--data {data}: no manifest.json (a dataset folder of python -m model.data build)"
     depth = json.loads(manifest.read_text())["config"]["depth"]
-    config = read_run(run).config
     if config.task != "foreground" and depth != config.depth:      # the foreground network reads renders
         return f"--data {data} was built at depth {depth}, but {run} was trained at depth {config.depth}"
     trained_on = Path(config.data) / "manifest.json" if config.data else None
@@ -194,15 +195,15 @@ def main(argv: list[str] | None = None) -> int:
         from .train.config import read_run
         final = Path(args.run)
         try:
-            trained = read_run(final).config.task
+            config = read_run(final).config
         except (FileNotFoundError, ValueError) as exc:
             print(f"python -m model.release: --run: {exc}", file=sys.stderr)
             return 2
-        if trained != recipe.train[0]:
-            print(f"python -m model.release: {final} is a {trained} run, not a {recipe.train[0]} run", file=sys.stderr)
+        if config.task != recipe.train[0]:
+            print(f"python -m model.release: {final} is a {config.task} run, not a {recipe.train[0]} run", file=sys.stderr)
             return 2
     if args.data is not None:
-        problem = _dataset_problem(data, final) if args.run is not None else "--data goes with --run"
+        problem = _dataset_problem(data, final, config) if args.run is not None else "--data goes with --run"
         if problem:
             print(f"python -m model.release: {problem}", file=sys.stderr)
             return 2
