@@ -11,13 +11,15 @@ import hashlib
 import io
 import json
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, TypeVar
 
 import numpy as np
 
 from ..data.dataset import ShapeRecord, load_record
 from ..files import write_atomic
 from .data import process_map
+
+T = TypeVar("T")
 
 
 def cache_dir(data_dir: str | Path, name: str, settings: dict) -> Path:
@@ -29,19 +31,25 @@ def cache_dir(data_dir: str | Path, name: str, settings: dict) -> Path:
 def cached_arrays(path: Path, sha: str, build: Callable[[], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     """The arrays cached at ``path`` for the record of checksum ``sha``, built and written
     atomically when missing, stale or unreadable."""
-    if path.is_file():
-        try:
-            with np.load(path) as f:
-                if str(f["record_sha256"]) == sha:
-                    return {k: f[k] for k in f.files}
-        except Exception:  # a damaged cache file is rebuilt
-            pass
+    cached = read_cached(path, sha, lambda f: {k: f[k] for k in f.files})
+    if cached is not None:
+        return cached
     arrays = {"record_sha256": np.array(sha), **build()}
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(path, buf.getvalue())
     return arrays
+
+
+def read_cached(path: Path, sha: str, read: Callable[[Any], T]) -> T | None:
+    """``read`` of the open cache file at ``path`` (an ``np.load`` of it: each array read when
+    asked for), or None when the file is missing, stale or damaged."""
+    try:
+        with np.load(path) as f:
+            return read(f) if str(f["record_sha256"]) == sha else None
+    except Exception:            # missing, or damaged anywhere: zip, zlib or array format
+        return None
 
 
 def derived_arrays(data_dir: str | Path, row: dict, cache: str | Path,

@@ -20,7 +20,7 @@ from ..octree.batch import merge_octrees
 from ..octree.pointcloud import normalization_of
 from ..octree.serialize import octree_from_arrays, octree_to_arrays
 from ..octree.symmetry import find_mirror, mirror_cloud
-from .cache import cache_dir, derived_arrays, load_derived
+from .cache import cache_dir, derived_arrays, load_derived, read_cached
 from .data import LazySequence, Sample, check_stream, manifest_rows, pick_points
 
 CACHE_VERSION = 1
@@ -95,6 +95,7 @@ class CompletionSet:
             self._frames.append(frame)
             self._picks.append(pick_points(rng, count, points))
         self._rows = [(r["category"], r["shape_id"]) for r in rows]
+        self._cached = [(cache / r["path"], r["sha256"]) for r in rows] if stream else None
         if stream:
             read = functools.lru_cache(maxsize=stream)(
                 lambda i: self._shape(i, *derived_arrays(data_dir, rows[i], cache, derive, keep)))
@@ -130,14 +131,30 @@ class CompletionSet:
         and normals mode are drawn at random (training); without, the evaluation view."""
         inputs, targets = [], []
         for i in indices:
-            options = self.variants[i]
-            if rng is None:
-                v, mode = options[0], self.normals
-            else:
-                v, mode = options[int(rng.integers(len(options)))], NORMALS[int(rng.integers(len(NORMALS)))]
-            inputs.append(v.inputs[mode])
-            targets.append(v.target)
+            source, target = self._drawn(i, rng) if rng is not None else (self.scan(i), self.variants[i][0].target)
+            inputs.append(source)
+            targets.append(target)
         return merge_octrees(inputs, neighbors=True), merge_octrees(targets, neighbors=True)
+
+    def _drawn(self, i: int, rng: np.random.Generator) -> tuple[Octree, Octree]:
+        """The (input, target) octrees of a scan and normals mode of shape ``i`` drawn from ``rng``;
+        a streamed set reads only those two octrees from the cache."""
+        def draw(scans: int) -> tuple[int, str]:
+            return int(rng.integers(scans)), NORMALS[int(rng.integers(len(NORMALS)))]
+
+        if self._cached is not None:
+            def read(f) -> tuple[Octree, Octree]:
+                j, mode = draw(int(f["scans"]))
+                return (octree_from_arrays(f, prefix=f"s{j}_{mode}_", neighbors=False),
+                        octree_from_arrays(f, prefix=f"s{j}_target_", neighbors=False))
+
+            state = rng.bit_generator.state       # a failed read draws again from the same state
+            if (pair := read_cached(*self._cached[i], read)) is not None:
+                return pair
+            rng.bit_generator.state = state
+        options = self.variants[i]
+        j, mode = draw(len(options))
+        return options[j].inputs[mode], options[j].target
 
     def scan(self, i: int) -> Octree:
         """The input octree of sample ``i``'s evaluation view (scan 0, the set's normals mode)."""

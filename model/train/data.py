@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data.dataset import load_record
 from ..octree import Normalization, Octree
 from ..octree.batch import merge_octrees
 from ..octree.serialize import octree_from_arrays
@@ -61,17 +60,15 @@ def _load_sample(path: Path, octree: str, images: bool) -> tuple[Octree, np.ndar
     """One record's octree, its points in the octree's cube and (with ``images``) its renders;
     ValueError naming the file if it is missing, damaged or has no renders."""
     try:
-        rec = load_record(path)
+        with np.load(path) as rec:          # only the arrays used are read and decompressed
+            tree = octree_from_arrays(rec, prefix=f"{octree}_", neighbors=False)
+            points = rec["points"]
+            views = (rec["images"] if "images" in rec.files else np.empty(0)) if images else None
     except _READ_ERRORS as exc:
         raise _damaged(path, exc) from None
-    tree = octree_from_arrays(rec.arrays, prefix=f"{octree}_", neighbors=False)
-    cube = tree.normalizations[0].to_cube(rec["points"])
-    views = None
-    if images:
-        views = rec["images"]
-        if views.ndim != 4 or views.shape[-1] != 4 or len(views) == 0:
-            raise ValueError(f"{path} has no RGBA renders; rebuild with --views 24")
-    return tree, cube, views
+    if views is not None and (views.ndim != 4 or views.shape[-1] != 4 or len(views) == 0):
+        raise ValueError(f"{path} has no RGBA renders; rebuild with --views 24")
+    return tree, tree.normalizations[0].to_cube(points), views
 
 
 def point_count(path: Path) -> int:
