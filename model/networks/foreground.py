@@ -50,6 +50,52 @@ class ForegroundNet(nn.Module):
         return self.head(x)
 
 
+def _conv(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(cin, cout, 3, stride, 1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
+
+
+class LiteForegroundNet(nn.Module):
+    """A U-Net whose cost is in its coarse stages: one 3x3 convolution at the input's resolution
+    (``width`` / 2 channels), the first two-convolution stage at half of it (``width``), then
+    stages doubling the channels up to 8 x ``width`` down to 1/32 of the input (a wider view of
+    the scene than :class:`ForegroundNet`'s 1/16), and a decoder of one convolution per stage with
+    half the encoder's channels (at most 4 x ``width``).  About a fifth of
+    :class:`ForegroundNet`'s multiply-adds at the same width; the same input and output (S
+    divisible by 32)."""
+
+    def __init__(self, width: int = 16):
+        super().__init__()
+        if width < 2:
+            raise ValueError(f"the light foreground network needs width >= 2, got {width}")
+        enc = [max(1, width // 2), width, 2 * width, 4 * width, 8 * width, 8 * width]
+        dec = [max(1, width // 2), width, 2 * width, 2 * width, 4 * width]
+        self.stem = _conv(3, enc[0])
+        self.down = nn.ModuleList([nn.Sequential(_conv(enc[i - 1], enc[i], 2), _conv(enc[i], enc[i]))
+                                   for i in range(1, len(enc))])
+        ups = [dec[i + 1] if i + 1 < len(dec) else enc[-1] for i in range(len(dec))]
+        self.up = nn.ModuleList([_conv(ups[i] + enc[i], dec[i]) for i in range(len(dec))])
+        self.head = nn.Conv2d(dec[0], 1, 1)
+        for m in self.modules():
+            if isinstance(m, nn.Conv2d) and m is not self.head:
+                nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu")
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        x = self.stem(images)
+        skips = [x]
+        for block in self.down:
+            x = block(x)
+            skips.append(x)
+        x = skips.pop()
+        for i in range(len(self.up) - 1, -1, -1):
+            x = F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
+            x = self.up[i](torch.cat([x, skips[i]], dim=1))
+        return self.head(x)
+
+
+FOREGROUND_ARCHS = {"unet": ForegroundNet, "unet-lite": LiteForegroundNet}
+"""The foreground networks by name (``--arch``): each built from its ``width``."""
+
+
 def mask_losses(logits: torch.Tensor, masks: torch.Tensor, skeletons: torch.Tensor | None = None,
                 skeleton_weight: float = 0.0) -> dict[str, torch.Tensor]:
     """Binary cross-entropy plus soft Dice (``total``), and the batch's IoU at 0.5 (``iou``,
@@ -80,9 +126,9 @@ class ForegroundModel(nn.Module):
     """The training wrapper: ``forward(images, masks[, skeletons])`` returns :func:`mask_losses`
     (the skeleton recall term weighted by ``skeleton_weight``)."""
 
-    def __init__(self, width: int = 8, levels: int = 5, skeleton_weight: float = 0.0):
+    def __init__(self, width: int = 8, skeleton_weight: float = 0.0, arch: str = "unet"):
         super().__init__()
-        self.net = ForegroundNet(width, levels)
+        self.net = FOREGROUND_ARCHS[arch](width)
         self.skeleton_weight = skeleton_weight
 
     def forward(self, images: torch.Tensor, masks: torch.Tensor,

@@ -116,7 +116,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="share of the encoder's square the object's longest side fills (default 0.9)")
     f = sub.add_parser("foreground", parents=[common],
                        help="train the foreground network that finds the object in a photo (background removal)")
-    f.add_argument("--arch", choices=("unet",), default="unet", help="unet (default): a compact U-Net")
+    f.add_argument("--arch", choices=("unet", "unet-lite"), default="unet",
+                   help="unet (default): a compact U-Net; unet-lite: a U-Net whose work is at half the input's "
+                        "resolution and coarser, about a fifth of unet's at the same width")
     f.add_argument("--width", dest="encoder_width", type=int, default=None,
                    help="the U-Net's first-stage channels, doubling per stage up to 8x (default 8)")
     f.add_argument("--crop-share", type=float, default=0.0,

@@ -294,10 +294,12 @@ class ForegroundTask:
     name = "foreground"
 
     def check(self, cfg: TrainConfig) -> None:
-        if cfg.arch != "unet":
-            raise ValueError(f"unknown foreground network {cfg.arch!r}; choose unet")
-        if cfg.image_size % 16 or not 32 <= cfg.image_size <= 512:
-            raise ValueError(f"--image-size must be a multiple of 16 in 32..512, got {cfg.image_size}")
+        from ..networks.foreground import FOREGROUND_ARCHS
+        if cfg.arch not in FOREGROUND_ARCHS:
+            raise ValueError(f"unknown foreground network {cfg.arch!r}; choose from {', '.join(FOREGROUND_ARCHS)}")
+        step = 32 if cfg.arch == "unet-lite" else 16
+        if cfg.image_size % step or not 32 <= cfg.image_size <= 512:
+            raise ValueError(f"--image-size must be a multiple of {step} in 32..512 for {cfg.arch}, got {cfg.image_size}")
         if not 0 <= cfg.crop_share <= 1:
             raise ValueError(f"--crop-share must be in 0..1, got {cfg.crop_share}")
         if not cfg.skeleton_weight >= 0:
@@ -319,7 +321,8 @@ class ForegroundTask:
 
     def build_model(self, cfg):
         from ..networks.foreground import ForegroundModel
-        return ForegroundModel(cfg.encoder_width or FOREGROUND_WIDTH, skeleton_weight=cfg.skeleton_weight)
+        return ForegroundModel(cfg.encoder_width or FOREGROUND_WIDTH, skeleton_weight=cfg.skeleton_weight,
+                               arch=cfg.arch)
 
     def inputs(self, cfg, dataset, indices, rng):
         images, masks = mask_batch([dataset.samples[i] for i in indices], self.spec(cfg), rng, cfg.crop_share)

@@ -27,6 +27,24 @@ def test_the_network_is_compact_and_maps_images_to_logits():
         ForegroundNet(width=0)
 
 
+def test_the_light_network_maps_images_to_logits_for_a_fifth_of_the_work():
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from model.networks.foreground import LiteForegroundNet
+
+    def flops(net):
+        with FlopCounterMode(display=False) as count:
+            net(torch.zeros(1, 3, 128, 128))
+        return count.get_total_flops()
+
+    lite = LiteForegroundNet(16).eval()
+    assert sum(p.numel() for p in lite.parameters()) <= 3_000_000
+    assert lite(torch.zeros(2, 3, 64, 96)).shape == (2, 1, 64, 96)
+    assert flops(lite) < 0.25 * flops(ForegroundNet(16).eval())
+    with pytest.raises(ValueError, match="width >= 2"):
+        LiteForegroundNet(width=1)
+
+
 def test_the_losses_reward_the_right_mask():
     truth = torch.zeros(1, 1, 8, 8)
     truth[..., 2:6, 2:6] = 1
@@ -96,6 +114,32 @@ def test_foreground_training_resumes_to_identical_weights_and_reports_iou(tiny_d
     assert 0 < float(masks.mean()) < 1                  # an object on a background, not all or nothing
     with pytest.raises(ValueError, match="multiple of 16"):
         Trainer(config(tiny_data, tmp_path / "bad", **{**FG, "image_size": 40}))
+
+
+def test_the_light_network_trains_resumes_and_exports_as_the_bundle_runs_it(tiny_data, tmp_path):
+    from export.bundle import load_bundle
+    from export.exporter import export
+    from export.runtime import Runtime
+    from model.checkpoint import load_model
+    from model.networks.foreground import LiteForegroundNet
+    from model.preprocess import MaskSpec, mask_input, mask_output
+
+    lite = {**FG, "arch": "unet-lite"}
+    straight, summary = trains_and_resumes_identically(tiny_data, tmp_path, **lite)
+    assert isinstance(straight.model.net, LiteForegroundNet) and 0 <= summary["val"]["iou"] <= 1
+    img = tmp_path / "img"
+    Trainer(config(tiny_data, img, iters=1, **IMAGE)).run()
+    meta = export(img, tmp_path / "bundle", foreground=tmp_path / "a", foreground_precision="float32")
+    assert meta["export"]["self_check"]["foreground_logit_max_abs_diff"] < 1e-4
+    rgb = np.random.default_rng(1).integers(0, 256, (50, 30, 3), dtype=np.uint8)
+    with torch.no_grad():
+        logits = load_model(tmp_path / "a").model.net(torch.from_numpy(mask_input(rgb, MaskSpec(size=32))[None]))
+    p = Runtime(load_bundle(tmp_path / "bundle"), threads=1).segment(rgb)
+    assert np.abs(mask_output(logits.numpy()[0, 0], 50, 30) - p).max() < 1e-4
+    with pytest.raises(ValueError, match="multiple of 32"):
+        Trainer(config(tiny_data, tmp_path / "bad", **{**lite, "image_size": 48}))
+    with pytest.raises(ValueError, match="unknown foreground network"):
+        Trainer(config(tiny_data, tmp_path / "bad", **{**FG, "arch": "segformer"}))
 
 
 def test_a_second_looks_view_is_the_objects_square_cut_from_the_photo():
