@@ -23,7 +23,7 @@ class Sample:
 
     category: str
     shape_id: str
-    octree: Octree
+    octree: Octree | None                # None in a renders-only set
     points: np.ndarray
     images: np.ndarray | None = None     # (V, H, W, 4) uint8 renders, when loaded
     truth_frame: Normalization | None = None   # completion: the cube ``points`` are in (else octree's)
@@ -56,19 +56,22 @@ def _damaged(path: Path, exc: Exception) -> ValueError:
 _READ_ERRORS = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile)   # missing, truncated or foreign file
 
 
-def _load_sample(path: Path, octree: str, images: bool) -> tuple[Octree, np.ndarray, np.ndarray | None]:
-    """One record's octree, its points in the octree's cube and (with ``images``) its renders;
-    ValueError naming the file if it is missing, damaged or has no renders."""
+def _load_sample(path: Path, octree: str | None, images: bool) -> tuple[Octree | None, np.ndarray, np.ndarray | None]:
+    """One record's octree, its points in the octree's cube (with ``octree`` None: neither, no
+    points) and (with ``images``) its renders; ValueError naming the file if it is missing,
+    damaged or has no renders."""
+    tree, cube = None, np.empty((0, 3), np.float32)
     try:
         with np.load(path) as rec:          # only the arrays used are read and decompressed
-            tree = octree_from_arrays(rec, prefix=f"{octree}_", neighbors=False)
-            points = rec["points"]
+            if octree is not None:
+                tree = octree_from_arrays(rec, prefix=f"{octree}_", neighbors=False)
+                cube = tree.normalizations[0].to_cube(rec["points"])
             views = (rec["images"] if "images" in rec.files else np.empty(0)) if images else None
     except _READ_ERRORS as exc:
         raise _damaged(path, exc) from None
     if views is not None and (views.ndim != 4 or views.shape[-1] != 4 or len(views) == 0):
         raise ValueError(f"{path} has no RGBA renders; rebuild with --views 24")
-    return tree, tree.normalizations[0].to_cube(points), views
+    return tree, cube, views
 
 
 def point_count(path: Path) -> int:
@@ -122,12 +125,13 @@ class LazySequence(Sequence):
 
 class RecordSet:
     """The records of one split of a dataset (octree arrays, a point subset and optionally the
-    renders): held in memory, or with ``stream`` read from the dataset each time a shape is asked
-    for (the last ``stream`` shapes kept), for splits larger than memory: the same samples.
+    renders; with ``octree`` None the renders alone: samples without octree or points): held in
+    memory, or with ``stream`` read from the dataset each time a shape is asked for (the last
+    ``stream`` shapes kept), for splits larger than memory: the same samples.
 
     ``workers`` > 1 reads the records in that many processes (the same samples as one)."""
 
-    def __init__(self, data_dir: str | Path, split: str, octree: str = "adaptive",
+    def __init__(self, data_dir: str | Path, split: str, octree: str | None = "adaptive",
                  points: int = 2048, depth: int | None = None, limit: int | None = None, seed: int = 0,
                  images: bool = False, categories: tuple[str, ...] | None = None, workers: int = 1,
                  stream: int = 0):
@@ -139,8 +143,11 @@ class RecordSet:
         self.latents = None        # optional per-shape target codes (a tensor), set by a task
         self.record_sha256 = [r["sha256"] for r in rows]
         paths = [data_dir / r["path"] for r in rows]
+        if octree is None and not images:
+            raise ValueError("a record set without octrees holds the renders: give images=True")
         if stream:
-            picks = [pick_points(rng, n, points) for n in process_map(point_count, paths, workers, 32)]
+            counts = process_map(point_count, paths, workers, 32) if octree is not None else [0] * len(paths)
+            picks = [pick_points(rng, n, points) for n in counts]
 
             def read(i: int) -> Sample:
                 tree, cube, views = _load_sample(paths[i], octree, images)
@@ -164,5 +171,8 @@ class RecordSet:
 
 
 def pick_points(rng: np.random.Generator, count: int, points: int) -> np.ndarray:
-    """Which ``points`` of a record's ``count`` a sample keeps (with repeats when too few)."""
+    """Which ``points`` of a record's ``count`` a sample keeps (with repeats when too few; none of
+    none)."""
+    if count == 0:
+        return np.empty(0, np.int64)
     return rng.choice(count, size=points, replace=count < points)

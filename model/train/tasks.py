@@ -316,7 +316,7 @@ class ForegroundTask:
 
     def dataset(self, cfg, split, seed, points=2048, limit=None):
         # renders only: a dataset of any octree depth serves (the same shapes, the same renders)
-        return RecordSet(cfg.data, split, "adaptive", points=16, depth=None, limit=limit, seed=seed,
+        return RecordSet(cfg.data, split, None, depth=None, limit=limit, seed=seed,
                          images=True, categories=cfg.categories, workers=cfg.workers, stream=cfg.stream)
 
     def build_model(self, cfg):

@@ -212,6 +212,15 @@ def test_a_streamed_record_set_gives_the_same_samples_image_batches_and_training
                         1.0, streamed.samples, photo_share=0.3)
         assert np.array_equal(x, y)
 
+    # renders only (the foreground network's set): the same renders, no octree or points read
+    for stream in (0, 2):
+        renders = RecordSet(tiny_data, "train", None, images=True, seed=3, stream=stream)
+        for a, b in zip(held.samples, renders.samples):
+            assert (a.category, a.shape_id) == (b.category, b.shape_id) and np.array_equal(a.images, b.images)
+            assert b.octree is None and b.points.shape == (0, 3)
+    with pytest.raises(ValueError, match="images=True"):
+        RecordSet(tiny_data, "train", None)
+
     # the same training, step for step (the image task's inputs come through the stream)
     kw = dict(task="image", arch="aocnn", encoder="lenet", encoder_width=4, image_size=32, iters=3, val_every=3)
     a = Trainer(config(tiny_data, tmp_path / "held", **kw))
