@@ -318,8 +318,22 @@ def _shadow(alpha: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         dy, dx = int((bottom - top) * rng.uniform(0.02, 0.15)), int((right - left) * rng.uniform(-0.2, 0.2))
         img = Image.fromarray(np.roll(alpha, (dy, dx), axis=(0, 1)).astype(np.float32), "F")
     radius = max(1.0, (right - left) * rng.uniform(0.03, 0.15))
-    soft = ndimage.gaussian_filter(np.asarray(img, np.float32), radius)
-    return np.clip(soft, 0, 1) * rng.uniform(0.2, 0.6)
+    return np.clip(_blur_support(np.asarray(img, np.float32), radius), 0, 1) * rng.uniform(0.2, 0.6)
+
+
+def _blur_support(a: np.ndarray, sigma: float) -> np.ndarray:
+    """``ndimage.gaussian_filter(a, sigma)``, computed only about where ``a`` is not zero: the
+    kernel (4 sigma a side) reaches no further, and a margin of zeros reflects as zeros, so the
+    result is the same to the bit."""
+    box = mask_bounds(a != 0)
+    if box is None:
+        return np.zeros_like(a)
+    reach = int(4.0 * sigma + 0.5) + 1
+    top, left = max(0, box[0] - reach), max(0, box[1] - reach)
+    bottom, right = min(a.shape[0], box[2] + reach), min(a.shape[1], box[3] + reach)
+    out = np.zeros_like(a)
+    out[top:bottom, left:right] = ndimage.gaussian_filter(a[top:bottom, left:right], sigma)
+    return out
 
 
 def mask_box(mask: np.ndarray, level: float = 0.5) -> tuple[int, int, int, int] | None:

@@ -146,3 +146,19 @@ def test_pebbles_print_and_specks_have_the_texture_they_are_named_for():
 def test_the_test_split_is_drawn_from_the_scenes_it_was_measured_with():
     assert photos.TEST_STYLE.scenes == photos.FIRST_SCENES == ("gradient", "noise", "pattern", "shapes")
     assert set(photos.PhotoStyle().scenes) == set(photos.SCENES) == set(photos._SCENE_PAINTERS)
+
+
+def test_the_shadow_blur_about_its_support_is_the_whole_images_blur_to_the_bit():
+    from scipy import ndimage
+
+    from model.data.photos import _blur_support
+
+    rng = np.random.default_rng(0)
+    for _ in range(60):
+        h, w = (int(v) for v in rng.integers(8, 200, 2))
+        a = np.zeros((h, w), np.float32)
+        y, x = int(rng.integers(h)), int(rng.integers(w))
+        a[y:y + int(rng.integers(1, h)), x:x + int(rng.integers(1, w))] = rng.uniform(0.1, 1)
+        sigma = float(rng.uniform(0.5, 25))
+        assert np.array_equal(_blur_support(a, sigma), ndimage.gaussian_filter(a, sigma))
+    assert not _blur_support(np.zeros((5, 7), np.float32), 3.0).any()
