@@ -328,12 +328,16 @@ def _blur_support(a: np.ndarray, sigma: float) -> np.ndarray:
     box = mask_bounds(a != 0)
     if box is None:
         return np.zeros_like(a)
-    reach = int(4.0 * sigma + 0.5) + 1
+    reach = int(BLUR_TRUNCATE * sigma + 0.5) + 1
     top, left = max(0, box[0] - reach), max(0, box[1] - reach)
     bottom, right = min(a.shape[0], box[2] + reach), min(a.shape[1], box[3] + reach)
     out = np.zeros_like(a)
-    out[top:bottom, left:right] = ndimage.gaussian_filter(a[top:bottom, left:right], sigma)
+    out[top:bottom, left:right] = ndimage.gaussian_filter(a[top:bottom, left:right], sigma, truncate=BLUR_TRUNCATE)
     return out
+
+
+BLUR_TRUNCATE = 4.0
+"""Where :func:`_blur_support`'s Gaussian is cut, in sigmas (scipy's default, which it reproduces)."""
 
 
 def mask_box(mask: np.ndarray, level: float = 0.5) -> tuple[int, int, int, int] | None:

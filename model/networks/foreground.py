@@ -1,11 +1,12 @@
-"""The foreground network: which pixels of a photo show the object (background removal).
+"""The foreground networks: which pixels of a photo show the object (background removal).
 
-A compact U-Net (Ronneberger et al. 2015): an encoder of ``levels`` stages, each two 3x3
-convolutions with batch norm and ReLU, halving the resolution between stages (stride-2
-convolution); a decoder that upsamples (bilinear x2), concatenates the encoder's features of the
-same resolution and applies two more convolutions; a 1x1 convolution to one logit per pixel.
-Widths double per stage from ``width``, capped at 8 x ``width``.  Input: (B, 3, S, S) images
-normalised as :func:`model.preprocess.mask_input` makes them (S divisible by 2^(levels-1));
+:class:`ForegroundNet` is a compact U-Net (Ronneberger et al. 2015): an encoder of ``levels``
+stages, each two 3x3 convolutions with batch norm and ReLU, halving the resolution between stages
+(stride-2 convolution); a decoder that upsamples (bilinear x2), concatenates the encoder's features
+of the same resolution and applies two more convolutions; a 1x1 convolution to one logit per pixel.
+Widths double per stage from ``width``, capped at 8 x ``width``.  :class:`LiteForegroundNet` is
+the same design with its work moved to coarser resolutions.  Input: (B, 3, S, S) images normalised
+as :func:`model.preprocess.mask_input` makes them (S divisible by the network's ``divisor``);
 output: (B, 1, S, S) logits of "object".
 """
 
@@ -16,13 +17,27 @@ from torch import nn
 from torch.nn import functional as F
 
 
+def _conv(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
+    """A 3x3 convolution (no bias), batch norm, ReLU."""
+    return nn.Sequential(nn.Conv2d(cin, cout, 3, stride, 1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
+
+
 def _block(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
-    return nn.Sequential(nn.Conv2d(cin, cout, 3, stride, 1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True),
-                         nn.Conv2d(cout, cout, 3, 1, 1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
+    """Two :func:`_conv` in one flat Sequential (the first with ``stride``)."""
+    return nn.Sequential(*_conv(cin, cout, stride), *_conv(cout, cout))
+
+
+def _init(net: nn.Module, head: nn.Module) -> None:
+    """He initialisation of every convolution but the head."""
+    for m in net.modules():
+        if isinstance(m, nn.Conv2d) and m is not head:
+            nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu")
 
 
 class ForegroundNet(nn.Module):
     """U-Net to object logits; see the module docstring."""
+
+    divisor = 16
 
     def __init__(self, width: int = 8, levels: int = 5):
         super().__init__()
@@ -34,9 +49,7 @@ class ForegroundNet(nn.Module):
                                   [_block(widths[i - 1], widths[i], 2) for i in range(1, levels)])
         self.up = nn.ModuleList([_block(widths[i + 1] + widths[i], widths[i]) for i in range(levels - 1)])
         self.head = nn.Conv2d(widths[0], 1, 1)
-        for m in self.modules():
-            if isinstance(m, nn.Conv2d) and m is not self.head:
-                nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu")
+        _init(self, self.head)
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         skips = []
@@ -50,34 +63,30 @@ class ForegroundNet(nn.Module):
         return self.head(x)
 
 
-def _conv(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
-    return nn.Sequential(nn.Conv2d(cin, cout, 3, stride, 1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
-
-
 class LiteForegroundNet(nn.Module):
-    """A U-Net whose cost is in its coarse stages: one 3x3 convolution at the input's resolution
-    (``width`` / 2 channels), the first two-convolution stage at half of it (``width``), then
-    stages doubling the channels up to 8 x ``width`` down to 1/32 of the input (a wider view of
-    the scene than :class:`ForegroundNet`'s 1/16), and a decoder of one convolution per stage with
-    half the encoder's channels (at most 4 x ``width``).  About a fifth of
-    :class:`ForegroundNet`'s multiply-adds at the same width; the same input and output (S
-    divisible by 32)."""
+    """A U-Net whose work is mostly at coarse resolutions: at the input's resolution only two 3x3
+    convolutions of ``width`` / 2 channels (the stem, and the decoder's last stage: a fifth of the
+    multiply-adds), the first two-convolution stage at half the resolution (``width``), then stages
+    doubling the channels up to 8 x ``width`` down to 1/32 of the input (a wider view of the scene
+    than :class:`ForegroundNet`'s 1/16), and a decoder of one convolution per stage with half the
+    encoder's channels (at most 4 x ``width``).  A fifth of :class:`ForegroundNet`'s multiply-adds
+    at the same width; the same input and output."""
+
+    divisor = 32
 
     def __init__(self, width: int = 16):
         super().__init__()
         if width < 2:
             raise ValueError(f"the light foreground network needs width >= 2, got {width}")
-        enc = [max(1, width // 2), width, 2 * width, 4 * width, 8 * width, 8 * width]
-        dec = [max(1, width // 2), width, 2 * width, 2 * width, 4 * width]
+        enc = [width // 2, width, 2 * width, 4 * width, 8 * width, 8 * width]
+        dec = [width // 2, width, 2 * width, 2 * width, 4 * width]
         self.stem = _conv(3, enc[0])
         self.down = nn.ModuleList([nn.Sequential(_conv(enc[i - 1], enc[i], 2), _conv(enc[i], enc[i]))
                                    for i in range(1, len(enc))])
-        ups = [dec[i + 1] if i + 1 < len(dec) else enc[-1] for i in range(len(dec))]
+        ups = dec[1:] + enc[-1:]                    # what reaches decoder stage i from below
         self.up = nn.ModuleList([_conv(ups[i] + enc[i], dec[i]) for i in range(len(dec))])
         self.head = nn.Conv2d(dec[0], 1, 1)
-        for m in self.modules():
-            if isinstance(m, nn.Conv2d) and m is not self.head:
-                nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu")
+        _init(self, self.head)
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         x = self.stem(images)

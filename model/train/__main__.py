@@ -120,7 +120,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="unet (default): a compact U-Net; unet-lite: a U-Net whose work is at half the input's "
                         "resolution and coarser, about a fifth of unet's at the same width")
     f.add_argument("--width", dest="encoder_width", type=int, default=None,
-                   help="the U-Net's first-stage channels, doubling per stage up to 8x (default 8)")
+                   help="the network's width: the channels of its first two-convolution stage, doubling per "
+                        "stage up to 8x (default 8)")
     f.add_argument("--crop-share", type=float, default=0.0,
                    help="share of the samples that are a second look's view: the object's square cut from "
                         "the photo, as the service looks again at a small object (default 0)")
@@ -128,7 +129,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="weight of the skeleton recall loss: the share of each target's thinned object "
                         "(legs, slats, a wing's edge) the mask misses (default 0: none)")
     f.add_argument("--image-size", type=int, default=128,
-                   help="the network's input side: photos are resized to it (default 128, a multiple of 16)")
+                   help="the network's input side: photos are resized to it (default 128, a multiple of 16; "
+                        "of 32 for unet-lite)")
     c = sub.add_parser("completion", parents=[common],
                        help="train shape completion from partial scans (paper section 5.2)")
     c.add_argument("--arch", choices=COMPLETION_ARCHS, default="aocnn",

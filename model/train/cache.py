@@ -17,7 +17,7 @@ import numpy as np
 
 from ..data.dataset import ShapeRecord, load_record
 from ..files import write_atomic
-from .data import process_map
+from .data import READ_ERRORS, process_map
 
 T = TypeVar("T")
 
@@ -48,7 +48,7 @@ def read_cached(path: Path, sha: str, read: Callable[[Any], T]) -> T | None:
     try:
         with np.load(path) as f:
             return read(f) if str(f["record_sha256"]) == sha else None
-    except Exception:            # missing, or damaged anywhere: zip, zlib or array format
+    except READ_ERRORS:          # missing, or damaged anywhere: zip, zlib or array format
         return None
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import json
 import zipfile
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,7 +54,8 @@ def _damaged(path: Path, exc: Exception) -> ValueError:
                       "rerun python -m model.data build to repair the dataset")
 
 
-_READ_ERRORS = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile)   # missing, truncated or foreign file
+READ_ERRORS = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error)
+"""What reading a missing, truncated, damaged or foreign .npz file raises."""
 
 
 def _load_sample(path: Path, octree: str | None, images: bool) -> tuple[Octree | None, np.ndarray, np.ndarray | None]:
@@ -67,7 +69,7 @@ def _load_sample(path: Path, octree: str | None, images: bool) -> tuple[Octree |
                 tree = octree_from_arrays(rec, prefix=f"{octree}_", neighbors=False)
                 cube = tree.normalizations[0].to_cube(rec["points"])
             views = (rec["images"] if "images" in rec.files else np.empty(0)) if images else None
-    except _READ_ERRORS as exc:
+    except READ_ERRORS as exc:
         raise _damaged(path, exc) from None
     if views is not None and (views.ndim != 4 or views.shape[-1] != 4 or len(views) == 0):
         raise ValueError(f"{path} has no RGBA renders; rebuild with --views 24")
@@ -82,7 +84,7 @@ def point_count(path: Path) -> int:
             version = np.lib.format.read_magic(f)
             read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
             return int(read(f)[0][0])
-    except _READ_ERRORS as exc:
+    except READ_ERRORS as exc:
         raise _damaged(path, exc) from None
 
 
@@ -145,9 +147,12 @@ class RecordSet:
         paths = [data_dir / r["path"] for r in rows]
         if octree is None and not images:
             raise ValueError("a record set without octrees holds the renders: give images=True")
+        def pick(count: int) -> np.ndarray:          # a renders-only set keeps no points
+            return pick_points(rng, count, points) if octree is not None else np.empty(0, np.int64)
+
         if stream:
-            counts = process_map(point_count, paths, workers, 32) if octree is not None else [0] * len(paths)
-            picks = [pick_points(rng, n, points) for n in counts]
+            picks = [pick(n) for n in (process_map(point_count, paths, workers, 32) if octree is not None
+                                       else [0] * len(paths))]
 
             def read(i: int) -> Sample:
                 tree, cube, views = _load_sample(paths[i], octree, images)
@@ -158,7 +163,7 @@ class RecordSet:
             return
         loaded = process_map(_load_star, [(p, octree, images) for p in paths], workers, 8)
         self.samples = [Sample(r["category"], r["shape_id"], tree,
-                               cube[pick_points(rng, len(cube), points)].astype(np.float32), views)
+                               cube[pick(len(cube))].astype(np.float32), views)
                         for r, (tree, cube, views) in zip(rows, loaded)]
 
     def __len__(self) -> int:
@@ -171,8 +176,5 @@ class RecordSet:
 
 
 def pick_points(rng: np.random.Generator, count: int, points: int) -> np.ndarray:
-    """Which ``points`` of a record's ``count`` a sample keeps (with repeats when too few; none of
-    none)."""
-    if count == 0:
-        return np.empty(0, np.int64)
+    """Which ``points`` of a record's ``count`` a sample keeps (with repeats when too few)."""
     return rng.choice(count, size=points, replace=count < points)

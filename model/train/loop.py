@@ -44,9 +44,11 @@ class _ArrayPickler(pickle.Pickler):
     ``torch.from_numpy``), instead of torch's serialisation of each storage, several times slower."""
 
     def reducer_override(self, obj):
-        if isinstance(obj, torch.Tensor) and obj.device.type == "cpu" and not obj.requires_grad \
-                and obj.dtype not in (torch.bfloat16, torch.float8_e4m3fn, torch.float8_e5m2):
-            return torch.from_numpy, (obj.numpy(),)
+        if type(obj) is torch.Tensor and obj.layout == torch.strided:
+            try:
+                return torch.from_numpy, (obj.numpy(),)
+            except (TypeError, RuntimeError):     # a dtype NumPy lacks, a tensor needing grad, on a GPU
+                pass
         return NotImplemented
 
 

@@ -297,7 +297,7 @@ class ForegroundTask:
         from ..networks.foreground import FOREGROUND_ARCHS
         if cfg.arch not in FOREGROUND_ARCHS:
             raise ValueError(f"unknown foreground network {cfg.arch!r}; choose from {', '.join(FOREGROUND_ARCHS)}")
-        step = 32 if cfg.arch == "unet-lite" else 16
+        step = FOREGROUND_ARCHS[cfg.arch].divisor
         if cfg.image_size % step or not 32 <= cfg.image_size <= 512:
             raise ValueError(f"--image-size must be a multiple of {step} in 32..512 for {cfg.arch}, got {cfg.image_size}")
         if not 0 <= cfg.crop_share <= 1:

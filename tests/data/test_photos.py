@@ -154,11 +154,12 @@ def test_the_shadow_blur_about_its_support_is_the_whole_images_blur_to_the_bit()
     from model.data.photos import _blur_support
 
     rng = np.random.default_rng(0)
-    for _ in range(60):
+    for k in range(60):
         h, w = (int(v) for v in rng.integers(8, 200, 2))
         a = np.zeros((h, w), np.float32)
         y, x = int(rng.integers(h)), int(rng.integers(w))
-        a[y:y + int(rng.integers(1, h)), x:x + int(rng.integers(1, w))] = rng.uniform(0.1, 1)
-        sigma = float(rng.uniform(0.5, 25))
+        part = a[y:y + int(rng.integers(1, h)), x:x + int(rng.integers(1, w))]
+        part[...] = rng.uniform(0.1, 1) if k % 2 else rng.uniform(-1, 1, part.shape)
+        sigma = float(rng.uniform(0.5, 25)) if k % 3 else float(rng.uniform(0.01, 0.5))
         assert np.array_equal(_blur_support(a, sigma), ndimage.gaussian_filter(a, sigma))
     assert not _blur_support(np.zeros((5, 7), np.float32), 3.0).any()
