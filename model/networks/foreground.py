@@ -27,6 +27,15 @@ def _block(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
     return nn.Sequential(*_conv(cin, cout, stride), *_conv(cout, cout))
 
 
+def _decode(x: torch.Tensor, skips: list[torch.Tensor], up: nn.ModuleList) -> torch.Tensor:
+    """A U-Net's decoder: from the coarsest features ``x``, for i from the last stage to 0,
+    upsample x2 (bilinear), concatenate ``skips[i]`` and apply ``up[i]``."""
+    for i in range(len(up) - 1, -1, -1):
+        x = F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
+        x = up[i](torch.cat([x, skips[i]], dim=1))
+    return x
+
+
 def _init(net: nn.Module, head: nn.Module) -> None:
     """He initialisation of every convolution but the head."""
     for m in net.modules():
@@ -57,10 +66,7 @@ class ForegroundNet(nn.Module):
         for block in self.down:
             x = block(x)
             skips.append(x)
-        for i in range(self.levels - 2, -1, -1):
-            x = F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
-            x = self.up[i](torch.cat([x, skips[i]], dim=1))
-        return self.head(x)
+        return self.head(_decode(x, skips, self.up))
 
 
 class LiteForegroundNet(nn.Module):
@@ -94,11 +100,7 @@ class LiteForegroundNet(nn.Module):
         for block in self.down:
             x = block(x)
             skips.append(x)
-        x = skips.pop()
-        for i in range(len(self.up) - 1, -1, -1):
-            x = F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
-            x = self.up[i](torch.cat([x, skips[i]], dim=1))
-        return self.head(x)
+        return self.head(_decode(skips.pop(), skips, self.up))
 
 
 FOREGROUND_ARCHS = {"unet": ForegroundNet, "unet-lite": LiteForegroundNet}

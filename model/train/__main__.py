@@ -26,6 +26,7 @@ import torch
 
 from ..networks import ARCHS, IMAGE_DECODERS, IMAGE_ENCODERS
 from ..networks.decoder import STRUCTURE_LOSSES
+from ..networks.foreground import FOREGROUND_ARCHS
 from .loop import TrainConfig, Trainer
 from ..networks.classifier import CLASSIFIER_ARCHS
 from .classify import UP_AXES
@@ -116,7 +117,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="share of the encoder's square the object's longest side fills (default 0.9)")
     f = sub.add_parser("foreground", parents=[common],
                        help="train the foreground network that finds the object in a photo (background removal)")
-    f.add_argument("--arch", choices=("unet", "unet-lite"), default="unet",
+    f.add_argument("--arch", choices=tuple(FOREGROUND_ARCHS), default="unet",
                    help="unet (default): a compact U-Net; unet-lite: a U-Net whose work is at half the input's "
                         "resolution and coarser, about a fifth of unet's at the same width")
     f.add_argument("--width", dest="encoder_width", type=int, default=None,

@@ -151,8 +151,8 @@ class RecordSet:
             return pick_points(rng, count, points) if octree is not None else np.empty(0, np.int64)
 
         if stream:
-            picks = [pick(n) for n in (process_map(point_count, paths, workers, 32) if octree is not None
-                                       else [0] * len(paths))]
+            counts = process_map(point_count, paths, workers, 32) if octree is not None else [0] * len(paths)
+            picks = [pick(n) for n in counts]
 
             def read(i: int) -> Sample:
                 tree, cube, views = _load_sample(paths[i], octree, images)
