@@ -35,9 +35,10 @@ def verify(path: str) -> dict:
         summary["decoded_leaves"] = sum(octree.leaves_per_depth())
         summary["decode_ms"] = round(1e3 * (time.perf_counter() - t), 1)
     if bundle.mask_spec() is not None:
+        side = bundle.mask_spec().size
         mask = runtime.segment(np.full((96, 128, 3), 128, np.uint8))
-        if mask.shape != (96, 128) or not np.isfinite(mask).all():
-            raise BundleError(f"{path}: the foreground network gives a {mask.shape} mask for a 96x128 image")
+        if mask.shape != (side, side) or not np.isfinite(mask).all():
+            raise BundleError(f"{path}: the foreground network gives a {mask.shape} mask, not its {side}x{side} grid")
         summary["foreground"] = True
     if "classifier_head" in bundle.graphs:
         p = runtime.classify(np.zeros((1, bundle.octree.latent), np.float32))[0]

@@ -108,13 +108,15 @@ class Runtime:
         return self.run("image_encoder", {"image": np.ascontiguousarray(images, dtype=np.float32)})[0]
 
     def segment(self, rgb: np.ndarray) -> np.ndarray:
-        """(H, W) object probability of an (H, W, 3) uint8 image by the bundle's foreground network
-        (:func:`model.preprocess.mask_input` / :func:`mask_output`); ValueError without one."""
+        """(size, size) object probability, on the network's grid over the whole image, of an
+        (H, W, 3) uint8 image by the bundle's foreground network (:func:`model.preprocess.mask_input`
+        / :func:`mask_output`; :func:`model.preprocess.to_image` brings it to the image); ValueError
+        without one."""
         spec = self.bundle.mask_spec()
         if spec is None:
             raise ValueError(f"{self.bundle.path}: the bundle has no foreground network")
         logits = self.run("foreground", {"image": mask_input(rgb, spec)[None]})[0]
-        return mask_output(logits[0, 0], rgb.shape[0], rgb.shape[1])
+        return mask_output(logits[0, 0])
 
     @property
     def has_foreground(self) -> bool:

@@ -424,13 +424,13 @@ def evaluate_classifier(model, cfg: TrainConfig, run: str, split: str = "test", 
 
 def torch_segment(model, spec):
     """The foreground network of a loaded model in torch, as :meth:`export.runtime.Runtime.segment`
-    runs its graph: an (H, W, 3) uint8 image to its (H, W) object probability."""
+    runs its graph: an (H, W, 3) uint8 image to its object probability on the network's grid."""
     from .preprocess import mask_input, mask_output
 
     def segment(rgb: np.ndarray) -> np.ndarray:
         with torch.no_grad():
             logits = model.net(torch.from_numpy(mask_input(rgb, spec)[None])).numpy()
-        return mask_output(logits[0, 0], rgb.shape[0], rgb.shape[1])
+        return mask_output(logits[0, 0])
     return segment
 
 

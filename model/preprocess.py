@@ -295,9 +295,9 @@ class MaskSpec:
     smaller square, enlarged to ``size``, is blurred as none of its training photos is, and its
     second mask was worse than the first (validation IoU 0.814 against 0.836 without those second
     looks, docs/RESULTS.md).  ``guide``: the radius, in the network's pixels, of the guided filter
-    each look's mask goes through at the image's resolution (:func:`guided_filter`, with the
-    regulariser ``guide_eps``; 0: none), which brings back the edges and thin parts that the
-    network's 128² loses; chosen on the validation split by ``python -m model.calibrate
+    that brings each look's mask from the network's grid to the image's resolution
+    (:func:`guided_filter`, with the regulariser ``guide_eps``; 0: none, the mask is resized), which
+    brings back the edges and thin parts that the network's 128² loses; chosen on the validation split by ``python -m model.calibrate
     --mask-guide``."""
 
     size: int = 128
@@ -347,10 +347,11 @@ def resize_mask(mask: np.ndarray, height: int, width: int) -> np.ndarray:
                       np.float32)
 
 
-def mask_output(logits: np.ndarray, height: int, width: int) -> np.ndarray:
-    """(height, width) float32 object probability of the network's (size, size) logits."""
-    p = 1.0 / (1.0 + np.exp(-np.clip(np.asarray(logits, np.float32).reshape(logits.shape[-2:]), -30, 30)))
-    return np.clip(resize_mask(p, height, width), 0.0, 1.0)
+def mask_output(logits: np.ndarray) -> np.ndarray:
+    """(size, size) float32 object probability of the network's (size, size) logits: on the
+    network's grid over the whole image (:func:`to_image` brings it to the image)."""
+    x = np.asarray(logits, np.float32).reshape(logits.shape[-2:])
+    return 1.0 / (1.0 + np.exp(-np.clip(x, -30, 30)))
 
 
 def clean_mask(mask: np.ndarray, spec: MaskSpec, area: int | None = None) -> np.ndarray:
@@ -388,60 +389,48 @@ def clean_mask(mask: np.ndarray, spec: MaskSpec, area: int | None = None) -> np.
     return out
 
 
-GUIDE_SIDE = 512
-"""The guided filter's coefficients are computed on the image reduced to at most this long side (the
-fast guided filter, He and Sun 2015: they vary slowly, and are upsampled bilinearly), so that their
-cost does not grow with the photo; no photo of the photo-like splits is larger."""
-
-
-GUIDE_SUPPORT = 0.02
-"""The guided filter runs only within two windows of where ``p`` exceeds this (elsewhere: 0)."""
-
-
-def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float,
-                  side: int = GUIDE_SIDE) -> np.ndarray:
-    """``p`` (H, W) in [0, 1] filtered with the grey image (luma) of ``rgb`` (H, W, 3) uint8 as its
-    guide (He, Sun and Tang's guided filter, ECCV 2010): in every (2 radius + 1)² window the output is a
-    linear function ``a I + b`` of the guide fitted to ``p`` by least squares with the regulariser
-    ``eps`` on ``a``, the fits of the windows over a pixel averaged.  Where the image has an edge
-    inside a window the mask follows it (the edges and thin parts a low-resolution mask blurs);
-    where the image is flat the mask is smoothed.  It is computed only within two windows of where
-    ``p`` exceeds :data:`GUIDE_SUPPORT` (0 further away), and an image longer than ``side`` has its
-    coefficients computed at that size.  Float32 (H, W), clipped to [0, 1]."""
+def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float) -> np.ndarray:
+    """``p`` (h, w) in [0, 1], an object probability on a grid over the whole of ``rgb`` (H, W, 3)
+    uint8 (the foreground network's, or the image's own pixels), brought to the image's resolution
+    with its grey image (luma) as the guide: He, Sun and Tang's guided filter (ECCV 2010), in the
+    fast form of He and Sun (2015) where the grid is coarser than the image.  On the grid, in every
+    (2 radius + 1)² window (``radius`` in grid pixels), ``p`` is fitted as a linear function ``a I +
+    b`` of the guide reduced to the grid, by least squares with the regulariser ``eps`` on ``a``;
+    the fits of the windows over a grid point are averaged, and ``a``, ``b`` resized to the image
+    (bilinear) give ``a I + b`` at every pixel of the image.  Where the image has an edge the mask
+    follows it (the edges and thin parts a low-resolution mask blurs); where the image is flat the
+    mask is smoothed.  The cost is the grid's, plus a few operations per image pixel.  Float32
+    (H, W), clipped to [0, 1]."""
     from scipy import ndimage
 
     p = np.asarray(p, np.float32)
-    support = mask_bounds(p > GUIDE_SUPPORT)
-    if support is None:
-        return np.zeros_like(p)
-    reach = 2 * int(np.ceil(radius)) + 2              # a pixel's output reads p within two windows
-    top, left = max(0, support[0] - reach), max(0, support[1] - reach)
-    bottom, right = min(p.shape[0], support[2] + reach), min(p.shape[1], support[3] + reach)
-    if (bottom - top) * (right - left) < p.size:      # the filter where p has support, 0 elsewhere
-        out = np.zeros_like(p)
-        out[top:bottom, left:right] = guided_filter(rgb[top:bottom, left:right], p[top:bottom, left:right],
-                                                    radius, eps, side)
-        return out
     grey = Image.fromarray(np.ascontiguousarray(rgb[..., :3]), "RGB").convert("L")      # luma, ITU-R 601
     guide = np.asarray(grey, np.float32) / np.float32(255)
-    h, w = p.shape
-    f = min(1.0, side / max(h, w))
-    if f < 1:
-        lh, lw = max(1, round(h * f)), max(1, round(w * f))
-        g, q = resize_mask(guide, lh, lw), resize_mask(p, lh, lw)
-    else:
-        g, q = guide, p
-    size = 2 * max(1, round(radius * f)) + 1
+    (h, w), (H, W) = p.shape, guide.shape
+    g = guide if (h, w) == (H, W) else resize_mask(guide, h, w)
+    size = 2 * max(1, round(radius)) + 1
 
     def box(x: np.ndarray) -> np.ndarray:
         return ndimage.uniform_filter(x, size, mode="reflect")
 
-    mean_i, mean_p = box(g), box(q)
-    a = (box(g * q) - mean_i * mean_p) / (box(g * g) - mean_i * mean_i + np.float32(eps))
+    mean_i, mean_p = box(g), box(p)
+    a = (box(g * p) - mean_i * mean_p) / (box(g * g) - mean_i * mean_i + np.float32(eps))
     a_mean, b_mean = box(a), box(mean_p - a * mean_i)
-    if f < 1:
-        a_mean, b_mean = resize_mask(a_mean, h, w), resize_mask(b_mean, h, w)
+    if (h, w) != (H, W):
+        a_mean, b_mean = resize_mask(a_mean, H, W), resize_mask(b_mean, H, W)
     return np.clip(a_mean * guide + b_mean, 0.0, 1.0)
+
+
+def to_image(rgb: np.ndarray, p: np.ndarray, spec: MaskSpec) -> np.ndarray:
+    """An object probability ``p`` on a grid over the whole of ``rgb`` (the network's ``spec.size``
+    square, or the image's own pixels) at the image's (H, W): through ``spec``'s guided filter
+    (its radius given in the network's pixels, scaled to the grid), else resized (bilinear)."""
+    p = np.asarray(p, np.float32)
+    if spec.guide > 0:
+        return guided_filter(rgb, p, spec.guide * max(p.shape) / spec.size, spec.guide_eps)
+    if p.shape == rgb.shape[:2]:
+        return p
+    return np.clip(resize_mask(p, *rgb.shape[:2]), 0.0, 1.0)
 
 
 def object_square(box: tuple[int, int, int, int], height: int, width: int, margin: float) -> tuple[int, int, int, int]:
@@ -465,19 +454,16 @@ def refine_square(box: tuple[int, int, int, int], height: int, width: int,
 
 def object_mask(rgb: np.ndarray, segment, spec: MaskSpec) -> np.ndarray:
     """(H, W) float32 object mask of an opaque image from ``segment`` (the foreground network: an
-    (h, w, 3) uint8 image to its (h, w) object probability), through ``spec``'s guided filter,
-    specks removed (:func:`clean_mask`; NoObjectError when nothing is left); a small object in a
+    (h, w, 3) uint8 image to its object probability on a grid over the whole image, the network's
+    ``spec.size`` square or the image's own pixels), brought to the image (:func:`to_image`: the
+    guided filter of ``spec``), specks removed (:func:`clean_mask`; NoObjectError when nothing is left); a small object in a
     large photo is segmented again in its square (see :class:`MaskSpec`), the second mask
     replacing the first there and clearing it elsewhere (unless it finds nothing: then the first
     stands)."""
     h, w = rgb.shape[:2]
 
     def look(image: np.ndarray) -> np.ndarray:
-        p = np.asarray(segment(image), np.float32)
-        if spec.guide > 0:
-            radius = max(1, round(spec.guide * max(image.shape[:2]) / spec.size))
-            p = guided_filter(image, p, radius, spec.guide_eps)
-        return p
+        return to_image(image, segment(image), spec)
 
     mask = clean_mask(look(rgb), spec)
     square = refine_square(mask_bounds(mask > 0.5), h, w, spec)
@@ -543,8 +529,9 @@ def frame_object(rgba: np.ndarray, spec: ImageSpec, segment=None, remove_backgro
     into the image model (training, evaluation, the CLI and the service).
 
     The mask: an image with transparency (some alpha below 250) uses its alpha; otherwise, unless
-    ``remove_background`` is "false", ``segment`` (a callable from (H, W, 3) uint8 to an (H, W)
-    object probability, the foreground network) gives it (:func:`object_mask`: specks removed, a
+    ``remove_background`` is "false", ``segment`` (a callable from (H, W, 3) uint8 to an object
+    probability on a grid over the image, the foreground network) gives it (:func:`object_mask`:
+    brought to the image through the guided filter, specks removed, a
     small object in a large photo segmented again at full resolution; NoObjectError when nothing
     is found).  The masked object is composited on ``spec.background`` and framed by
     :func:`prepare_image` (its crop box, a square the object fills ``foreground_ratio`` of,

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from model.preprocess import (ImageError, ImageSpec, MaskSpec, NoObjectError, clean_mask, frame_object,
-                              mask_bounds, mask_input, mask_output, object_mask, object_square, resize_mask)
+                              mask_bounds, mask_input, mask_output, object_mask, object_square, resize_mask,
+                              to_image)
 
 SPEC = ImageSpec(size=64)
 
@@ -171,8 +173,11 @@ def test_mask_input_and_output_map_between_the_photo_and_the_network():
     assert x[0, :, :15].max() == pytest.approx(-2.0) and x[0, :, 17:].min() == pytest.approx(2.0)
     logits = np.full((32, 32), -20.0, np.float32)
     logits[:, 16:] = 20.0
-    p = mask_output(logits, 50, 80)
-    assert p.shape == (50, 80) and p[:, :38].max() < 0.01 and p[:, 42:].min() > 0.99
+    p = mask_output(logits)
+    assert p.shape == (32, 32) and p[:, :16].max() < 1e-6 and p[:, 16:].min() > 1 - 1e-6
+    # the network's grid brought to the photo: resized without a guided filter
+    q = to_image(rgb, p, spec)
+    assert q.shape == (50, 80) and q[:, :38].max() < 0.01 and q[:, 42:].min() > 0.99
     assert resize_mask(np.ones((10, 10)), 3, 4).shape == (3, 4)
 
 
@@ -264,21 +269,38 @@ def test_object_mask_applies_the_guided_filter_to_each_look():
     assert MaskSpec.from_dict({"size": 128}).guide == 0.0       # bundles without it: no filter
 
 
-def test_the_guided_filter_of_a_large_image_is_computed_reduced_and_agrees_with_the_full_one():
+def test_the_guided_filter_brings_a_coarse_grid_to_the_image_along_its_edges():
+    """A mask on a coarse grid over a large image (as the network's 128² covers a photo): the guided
+    filter's output at the image's resolution follows the objects' edges, far closer to them than
+    the grid resized; and a grid the image's own size is the plain guided filter."""
     from scipy import ndimage
 
     from model.preprocess import guided_filter
 
     rng = np.random.default_rng(0)
-    rgb = np.full((900, 1200, 3), 200, np.uint8)
-    truth = np.zeros((900, 1200), bool)
-    for _ in range(6):                                          # dark boxes and bars
-        y, x = rng.integers(0, 800), rng.integers(0, 1100)
-        hh, ww = rng.integers(8, 200), rng.integers(8, 200)
+    rgb = np.full((600, 800, 3), 200, np.uint8)
+    truth = np.zeros((600, 800), bool)
+    for k in range(6):                                          # dark bars 4-11 px thin: under a grid pixel
+        y, x = rng.integers(0, 450), rng.integers(0, 650)
+        thin, long = rng.integers(4, 12), rng.integers(60, 150)
+        hh, ww = (thin, long) if k % 2 else (long, thin)
         rgb[y:y + hh, x:x + ww], truth[y:y + hh, x:x + ww] = 40, True
     rgb = np.clip(rgb + rng.normal(0, 6, rgb.shape), 0, 255).astype(np.uint8)
-    p = np.clip(ndimage.gaussian_filter(truth.astype(np.float32), 8) * 2, 0, 1)
-    full = guided_filter(rgb, p, 24, 1e-4, side=10 ** 6)
-    fast = guided_filter(rgb, p, 24, 1e-4)                      # coefficients at 512 px
-    assert np.abs(fast - full).mean() < 0.01
-    assert np.mean((fast > 0.5) == (full > 0.5)) > 0.995
+    grid = resize_mask(truth.astype(np.float32), 64, 64)       # a perfect mask, at 64²
+
+    def iou(m):
+        return (m & truth).sum() / (m | truth).sum()
+
+    out = guided_filter(rgb, grid, 1, 1e-4)
+    assert out.shape == (600, 800) and out.dtype == np.float32 and 0 <= out.min() and out.max() <= 1
+    assert iou(resize_mask(grid, 600, 800) > 0.5) < 0.7 and iou(out > 0.5) > 0.95
+    # the image's own grid: each output pixel is the windows' mean fit, computed here directly
+    small, p = rgb[:40, :50], np.clip(ndimage.gaussian_filter(truth[:40, :50].astype(np.float32), 2) * 2, 0, 1)
+    g = np.asarray(Image.fromarray(small).convert("L"), np.float64) / 255
+
+    def box(x):
+        return ndimage.uniform_filter(x, 5, mode="reflect")
+
+    a = (box(g * p) - box(g) * box(p)) / (box(g * g) - box(g) ** 2 + 1e-4)
+    want = np.clip(box(a) * g + box(box(p) - a * box(g)), 0, 1)
+    assert np.abs(guided_filter(small, p, 2, 1e-4) - want).max() < 1e-4

@@ -111,7 +111,7 @@ def _finds_the_object_in_a_photo(loaded, meta):
     def segment(rgb):
         with torch.no_grad():
             logits = loaded.model.net(torch.from_numpy(mask_input(rgb, spec)[None])).numpy()
-        return mask_output(logits[0, 0], *rgb.shape[:2])
+        return mask_output(logits[0, 0])
 
     ious = []
     for seed in range(4):

@@ -17,7 +17,7 @@ from PIL import Image, ImageDraw
 
 from export.bundle import load_bundle
 from export.runtime import Runtime
-from model.preprocess import REMOVE_BACKGROUND
+from model.preprocess import REMOVE_BACKGROUND, to_image
 from service.metrics import Metrics, StageTimer
 from service.schemas import RemoveBackground
 
@@ -265,8 +265,10 @@ def test_the_real_foreground_graph_runs(fg_client, foreground_models_dir):
     assert r.headers["x-mask"] == "network" and r.headers["x-crop-box"] == "0,0,120,200"
     assert "mask" in stages(r)
     got = np.asarray(Image.open(io.BytesIO(r.content)), np.float32)
-    direct = Runtime(load_bundle(foreground_models_dir / "image-to-shape"), threads=1).segment(img)
-    assert got.shape == direct.shape == (120, 200)
+    runtime = Runtime(load_bundle(foreground_models_dir / "image-to-shape"), threads=1)
+    grid = runtime.segment(img)
+    direct = to_image(img, grid, runtime.bundle.mask_spec())
+    assert grid.shape == (64, 64) and got.shape == direct.shape == (120, 200)
     assert np.abs(got - direct * 255).max() <= 1.01 and got.min() > 200
     mesh = post(fg_client, png(img))
     assert mesh.status_code == 200 and mesh.headers["x-mask"] == "network"
