@@ -226,9 +226,10 @@ def record_with_run(run: str, meta: dict, key: str, filename: str, report: dict)
         write_atomic(path / filename, json_text(report).encode())
 
 
-MASK_GUIDE_RADII = (0.0, 1.0, 1.5, 2.0, 2.5, 3.0)
-"""Guided-filter radii tried by ``--mask-guide``, in the foreground network's pixels (0: none)."""
-MASK_GUIDE_EPS = (3e-5, 1e-4, 3e-4)
+MASK_GUIDE_RADII = (0.0, 1.0, 2.0, 3.0, 4.0)
+"""Guided-filter radii tried by ``--mask-guide``, in the foreground network's pixels (0: none); whole
+pixels, since the filter's windows are on the network's grid (:func:`model.preprocess.to_image`)."""
+MASK_GUIDE_EPS = (1e-5, 3e-5, 1e-4, 3e-4)
 """Guided-filter regularisers tried by ``--mask-guide`` (the guide is the grey image in [0, 1])."""
 
 
