@@ -296,9 +296,9 @@ class MaskSpec:
     second mask was worse than the first (validation IoU 0.814 against 0.836 without those second
     looks, docs/RESULTS.md).  ``guide``: the radius, in the network's pixels, of the guided filter
     that brings each look's mask from the network's grid to the image's resolution
-    (:func:`guided_filter`, with the regulariser ``guide_eps``; 0: none, the mask is resized), which
-    brings back the edges and thin parts that the network's 128² loses; chosen on the validation split by ``python -m model.calibrate
-    --mask-guide``."""
+    (:func:`guided_filter`, with the regulariser ``guide_eps``; 0: none, the mask is resized),
+    which brings back the edges and thin parts that the network's 128² loses; chosen on the
+    validation split by ``python -m model.calibrate --mask-guide``."""
 
     size: int = 128
     mean: tuple[float, float, float] = (0.5, 0.5, 0.5)
@@ -456,10 +456,10 @@ def object_mask(rgb: np.ndarray, segment, spec: MaskSpec) -> np.ndarray:
     """(H, W) float32 object mask of an opaque image from ``segment`` (the foreground network: an
     (h, w, 3) uint8 image to its object probability on a grid over the whole image, the network's
     ``spec.size`` square or the image's own pixels), brought to the image (:func:`to_image`: the
-    guided filter of ``spec``), specks removed (:func:`clean_mask`; NoObjectError when nothing is left); a small object in a
-    large photo is segmented again in its square (see :class:`MaskSpec`), the second mask
-    replacing the first there and clearing it elsewhere (unless it finds nothing: then the first
-    stands)."""
+    guided filter of ``spec``), specks removed (:func:`clean_mask`; NoObjectError when nothing is
+    left); a small object in a large photo is segmented again in its square (see
+    :class:`MaskSpec`), the second mask replacing the first there and clearing it elsewhere
+    (unless it finds nothing: then the first stands)."""
     h, w = rgb.shape[:2]
 
     def look(image: np.ndarray) -> np.ndarray:
@@ -531,12 +531,11 @@ def frame_object(rgba: np.ndarray, spec: ImageSpec, segment=None, remove_backgro
     The mask: an image with transparency (some alpha below 250) uses its alpha; otherwise, unless
     ``remove_background`` is "false", ``segment`` (a callable from (H, W, 3) uint8 to an object
     probability on a grid over the image, the foreground network) gives it (:func:`object_mask`:
-    brought to the image through the guided filter, specks removed, a
-    small object in a large photo segmented again at full resolution; NoObjectError when nothing
-    is found).  The masked object is composited on ``spec.background`` and framed by
-    :func:`prepare_image` (its crop box, a square the object fills ``foreground_ratio`` of,
-    resized).  Without a mask, :func:`prepare_image` alone (an opaque image
-    is cropped by its border colour)."""
+    brought to the image through the guided filter, specks removed, a small object in a large
+    photo segmented again at full resolution; NoObjectError when nothing is found).  The masked
+    object is composited on ``spec.background`` and framed by :func:`prepare_image` (its crop box,
+    a square the object fills ``foreground_ratio`` of, resized).  Without a mask,
+    :func:`prepare_image` alone (an opaque image is cropped by its border colour)."""
     if remove_background not in REMOVE_BACKGROUND:
         raise ImageError(f"remove_background must be one of {', '.join(REMOVE_BACKGROUND)}, got {remove_background!r}")
     rgba = as_rgba(rgba)
