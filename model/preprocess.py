@@ -363,10 +363,12 @@ def clean_mask(mask: np.ndarray, spec: MaskSpec, area: int | None = None) -> np.
 
     area = mask.size if area is None else area
     hard = mask > 0.5
-    labels, n = ndimage.label(hard)
-    if n == 0:
+    support = mask_bounds(hard)
+    if support is None:
         raise NoObjectError("no object found in the image: no region of it looks like an object against its "
                             "background")
+    top, left, bottom, right = support
+    labels, n = ndimage.label(hard[top:bottom, left:right])     # every component lies in the box
     sizes = np.bincount(labels.ravel(), minlength=n + 1)[1:]
     keep = np.flatnonzero(sizes >= spec.keep * sizes.max()) + 1
     if int(sizes[keep - 1].sum()) < spec.min_area * area:
@@ -375,15 +377,18 @@ def clean_mask(mask: np.ndarray, spec: MaskSpec, area: int | None = None) -> np.
                             "send a photo where the object fills more of the frame")
     if len(keep) == n:
         return mask
-    # the kept components' box grown by the 2-pixel reach: nothing outside it survives
+    # the kept components' box grown by the 2-pixel reach, in the image: nothing outside it survives
     boxes = ndimage.find_objects(labels)
-    y0 = max(0, min(boxes[k - 1][0].start for k in keep) - 2)
-    y1 = max(boxes[k - 1][0].stop for k in keep) + 2
-    x0 = max(0, min(boxes[k - 1][1].start for k in keep) - 2)
-    x1 = max(boxes[k - 1][1].stop for k in keep) + 2
+    y0 = max(0, top + min(boxes[k - 1][0].start for k in keep) - 2)
+    y1 = min(mask.shape[0], top + max(boxes[k - 1][0].stop for k in keep) + 2)
+    x0 = max(0, left + min(boxes[k - 1][1].start for k in keep) - 2)
+    x1 = min(mask.shape[1], left + max(boxes[k - 1][1].stop for k in keep) + 2)
     kept_label = np.zeros(n + 1, bool)
     kept_label[keep] = True
-    near = ndimage.binary_dilation(kept_label[labels[y0:y1, x0:x1]], iterations=2)
+    region = np.zeros((y1 - y0, x1 - x0), labels.dtype)            # the labels there (0 outside the box)
+    oy0, oy1, ox0, ox1 = max(y0, top), min(y1, bottom), max(x0, left), min(x1, right)
+    region[oy0 - y0:oy1 - y0, ox0 - x0:ox1 - x0] = labels[oy0 - top:oy1 - top, ox0 - left:ox1 - left]
+    near = ndimage.binary_dilation(kept_label[region], iterations=2)
     out = np.zeros(mask.shape, np.float32)
     out[y0:y1, x0:x1] = np.where(near, mask[y0:y1, x0:x1], 0.0)
     return out

@@ -194,9 +194,10 @@ def test_when_the_second_look_finds_nothing_the_first_stands():
 
 
 def test_clean_mask_is_its_whole_image_definition():
-    """On random soft masks: the mask itself when every component is kept, else the mask where a
-    pixel is within 2 pixels (4-connected steps) of a kept component and 0 elsewhere; NoObjectError
-    when too little is kept; ``area`` sets what the kept share is of."""
+    """On random soft masks, alone and placed in a larger image: the mask itself when every
+    component is kept, else the mask where a pixel is within 2 pixels (4-connected steps) of a kept
+    component and 0 elsewhere; NoObjectError when too little is kept; ``area`` sets what the kept
+    share is of."""
     from scipy import ndimage
 
     rng = np.random.default_rng(0)
@@ -216,6 +217,11 @@ def test_clean_mask_is_its_whole_image_definition():
         near = ndimage.binary_dilation(np.isin(labels, keep), iterations=2)
         want = soft if len(keep) == n else np.where(near, soft, 0)
         assert np.array_equal(clean_mask(soft, spec), want), (h, w)
+        # the same mask inside a larger image, anywhere (its edges included): the same result there
+        canvas, placed = np.zeros((h + 60, w + 60), np.float32), np.zeros((h + 60, w + 60), np.float32)
+        y, x = (int(v) for v in rng.integers(0, 61, 2))
+        canvas[y:y + h, x:x + w], placed[y:y + h, x:x + w] = soft, want
+        assert np.array_equal(clean_mask(canvas, spec, area=soft.size), placed), (h, w, y, x)
         checked += 1
     assert checked > 100
     dot = np.zeros((10, 10), np.float32)
