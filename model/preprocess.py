@@ -296,8 +296,8 @@ class MaskSpec:
     second mask was worse than the first (validation IoU 0.814 against 0.836 without those second
     looks, docs/RESULTS.md).  ``guide``: the radius, in the network's pixels, of the guided filter
     that brings each look's mask from the network's grid to the image's resolution
-    (:func:`guided_filter`, with the regulariser ``guide_eps``; 0: none, the mask is resized),
-    which brings back the edges and thin parts that the network's 128² loses; chosen on the
+    (:func:`guided_filter`, with the regulariser ``guide_eps``; 0: none, the mask is resized;
+    on the 128² grid the radius is rounded to whole pixels), which brings back the edges and thin parts that the network's 128² loses; chosen on the
     validation split by ``python -m model.calibrate --mask-guide``."""
 
     size: int = 128
@@ -399,7 +399,7 @@ def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float) -> 
     uint8 (the foreground network's, or the image's own pixels), brought to the image's resolution
     with its grey image (luma) as the guide: He, Sun and Tang's guided filter (ECCV 2010), in the
     fast form of He and Sun (2015) where the grid is coarser than the image.  On the grid, in every
-    (2 radius + 1)² window (``radius`` in grid pixels), ``p`` is fitted as a linear function ``a I +
+    (2 r + 1)² window (``r``: ``radius`` in grid pixels, rounded, at least 1), ``p`` is fitted as a linear function ``a I +
     b`` of the guide reduced to the grid, by least squares with the regulariser ``eps`` on ``a``;
     the fits of the windows over a grid point are averaged, and ``a``, ``b`` resized to the image
     (bilinear) give ``a I + b`` at every pixel of the image.  Where the image has an edge the mask
@@ -428,14 +428,13 @@ def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float) -> 
 
 def to_image(rgb: np.ndarray, p: np.ndarray, spec: MaskSpec) -> np.ndarray:
     """An object probability ``p`` on a grid over the whole of ``rgb`` (the network's ``spec.size``
-    square, or the image's own pixels) at the image's (H, W): through ``spec``'s guided filter
-    (its radius given in the network's pixels, scaled to the grid), else resized (bilinear)."""
+    square, or the image's own pixels) at the image's (H, W), float32 in [0, 1]: through
+    ``spec``'s guided filter (its radius given in the network's pixels, scaled to the grid), else
+    resized (bilinear)."""
     p = np.asarray(p, np.float32)
     if spec.guide > 0:
         return guided_filter(rgb, p, spec.guide * max(p.shape) / spec.size, spec.guide_eps)
-    if p.shape == rgb.shape[:2]:
-        return p
-    return np.clip(resize_mask(p, *rgb.shape[:2]), 0.0, 1.0)
+    return np.clip(p if p.shape == rgb.shape[:2] else resize_mask(p, *rgb.shape[:2]), 0.0, 1.0)
 
 
 def object_square(box: tuple[int, int, int, int], height: int, width: int, margin: float) -> tuple[int, int, int, int]:

@@ -275,6 +275,32 @@ def test_object_mask_applies_the_guided_filter_to_each_look():
     assert MaskSpec.from_dict({"size": 128}).guide == 0.0       # bundles without it: no filter
 
 
+def test_a_network_that_answers_on_its_grid_is_brought_to_the_photo():
+    """A stand-in network answering on a 128² grid over the photo, as the real one does: the mask
+    comes back at the photo's size, on the object, with and without the guided filter; a small
+    object in a large photo gets its second look on its own square."""
+    rgb, truth = photo()
+
+    def on_grid(img):
+        return resize_mask(Net()(img), 128, 128)
+
+    for spec in (MaskSpec(refine=0), MaskSpec(refine=0, guide=2, guide_eps=3e-5)):
+        mask = object_mask(rgb, on_grid, spec)
+        assert mask.shape == rgb.shape[:2] and mask.dtype == np.float32 and 0 <= mask.min() and mask.max() <= 1
+        hard = mask > 0.5
+        assert (hard & (truth > 0)).sum() / (hard | (truth > 0)).sum() > 0.97, spec
+    big, small_truth = photo(h=800, w=1200, boxes=((560, 900, 680, 1080),))
+    looks = []
+
+    def counted(img):
+        looks.append(img.shape[:2])
+        return on_grid(img)
+
+    f = frame_object(big, SPEC, counted, mask_spec=MaskSpec(guide=2, guide_eps=3e-5))
+    assert looks[0] == (800, 1200) and len(looks) == 2 and looks[1][0] == looks[1][1] < 400
+    assert f.box == (560, 900, 680, 1080) and np.array_equal(f.mask > 127, small_truth > 0.5)
+
+
 def test_the_guided_filter_brings_a_coarse_grid_to_the_image_along_its_edges():
     """A mask on a coarse grid over a large image (as the network's 128² covers a photo): the guided
     filter's output at the image's resolution follows the objects' edges, far closer to them than

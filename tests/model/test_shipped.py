@@ -103,16 +103,12 @@ def _photo_of_an_unseen_chair(seed: int = 0):
 
 def _finds_the_object_in_a_photo(loaded, meta):
     """An unseen chair on held-out photographs: the mask finds it (IoU with the exact mask)."""
-    from model.preprocess import mask_input, mask_output, object_mask
+    from model.evaluate import torch_segment
+    from model.preprocess import object_mask
     from model.train.tasks import TASKS
 
     spec = TASKS["foreground"].spec(loaded.config)
-
-    def segment(rgb):
-        with torch.no_grad():
-            logits = loaded.model.net(torch.from_numpy(mask_input(rgb, spec)[None])).numpy()
-        return mask_output(logits[0, 0])
-
+    segment = torch_segment(loaded.model, spec)
     ious = []
     for seed in range(4):
         photo = _photo_of_an_unseen_chair(seed)
