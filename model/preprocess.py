@@ -297,8 +297,9 @@ class MaskSpec:
     looks, docs/RESULTS.md).  ``guide``: the radius, in the network's pixels, of the guided filter
     that brings each look's mask from the network's grid to the image's resolution
     (:func:`guided_filter`, with the regulariser ``guide_eps``; 0: none, the mask is resized;
-    on the 128² grid the radius is rounded to whole pixels), which brings back the edges and thin parts that the network's 128² loses; chosen on the
-    validation split by ``python -m model.calibrate --mask-guide``."""
+    on the 128² grid the radius is rounded to whole pixels), which brings back the edges and thin
+    parts that the network's 128² loses; chosen on the validation split by ``python -m
+    model.calibrate --mask-guide``."""
 
     size: int = 128
     mean: tuple[float, float, float] = (0.5, 0.5, 0.5)
@@ -377,20 +378,15 @@ def clean_mask(mask: np.ndarray, spec: MaskSpec, area: int | None = None) -> np.
                             "send a photo where the object fills more of the frame")
     if len(keep) == n:
         return mask
-    # the kept components' box grown by the 2-pixel reach, in the image: nothing outside it survives
-    boxes = ndimage.find_objects(labels)
-    y0 = max(0, top + min(boxes[k - 1][0].start for k in keep) - 2)
-    y1 = min(mask.shape[0], top + max(boxes[k - 1][0].stop for k in keep) + 2)
-    x0 = max(0, left + min(boxes[k - 1][1].start for k in keep) - 2)
-    x1 = min(mask.shape[1], left + max(boxes[k - 1][1].stop for k in keep) + 2)
+    # the kept components grown by the 2-pixel reach, on the box grown by as much: nothing else survives
     kept_label = np.zeros(n + 1, bool)
     kept_label[keep] = True
-    region = np.zeros((y1 - y0, x1 - x0), labels.dtype)            # the labels there (0 outside the box)
-    oy0, oy1, ox0, ox1 = max(y0, top), min(y1, bottom), max(x0, left), min(x1, right)
-    region[oy0 - y0:oy1 - y0, ox0 - x0:ox1 - x0] = labels[oy0 - top:oy1 - top, ox0 - left:ox1 - left]
-    near = ndimage.binary_dilation(kept_label[region], iterations=2)
+    near = ndimage.binary_dilation(np.pad(kept_label[labels], 2), iterations=2)   # rows from top - 2
+    y0, y1 = max(0, top - 2), min(mask.shape[0], bottom + 2)
+    x0, x1 = max(0, left - 2), min(mask.shape[1], right + 2)
     out = np.zeros(mask.shape, np.float32)
-    out[y0:y1, x0:x1] = np.where(near, mask[y0:y1, x0:x1], 0.0)
+    out[y0:y1, x0:x1] = np.where(near[y0 - top + 2:y1 - top + 2, x0 - left + 2:x1 - left + 2],
+                                 mask[y0:y1, x0:x1], 0.0)
     return out
 
 
@@ -399,8 +395,9 @@ def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float) -> 
     uint8 (the foreground network's, or the image's own pixels), brought to the image's resolution
     with its grey image (luma) as the guide: He, Sun and Tang's guided filter (ECCV 2010), in the
     fast form of He and Sun (2015) where the grid is coarser than the image.  On the grid, in every
-    (2 r + 1)² window (``r``: ``radius`` in grid pixels, rounded, at least 1), ``p`` is fitted as a linear function ``a I +
-    b`` of the guide reduced to the grid, by least squares with the regulariser ``eps`` on ``a``;
+    (2 r + 1)² window (``r``: ``radius`` in grid pixels, rounded, at least 1), ``p`` is fitted as a
+    linear function ``a I + b`` of the guide reduced to the grid, by least squares with the
+    regulariser ``eps`` on ``a``;
     the fits of the windows over a grid point are averaged, and ``a``, ``b`` resized to the image
     (bilinear) give ``a I + b`` at every pixel of the image.  Where the image has an edge the mask
     follows it (the edges and thin parts a low-resolution mask blurs); where the image is flat the
