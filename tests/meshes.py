@@ -11,8 +11,10 @@ and written once per test process.  When the research meshes in ``../shared/mesh
 
 from __future__ import annotations
 
+import atexit
 import functools
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -103,7 +105,10 @@ GENERATED = {"chair_soup.off": chair_soup, "cad_block.stl": cad_block, "blob.obj
 
 @functools.lru_cache(maxsize=None)
 def _folder() -> Path:
-    return Path(tempfile.mkdtemp(prefix="aocnn-test-meshes-"))
+    """The generated meshes' folder, made once per test process and removed when it ends."""
+    path = tempfile.mkdtemp(prefix="aocnn-test-meshes-")
+    atexit.register(shutil.rmtree, path, True)
+    return Path(path)
 
 
 def mesh_path(name: str) -> str:
