@@ -392,46 +392,19 @@ def clean_mask(mask: np.ndarray, spec: MaskSpec, area: int | None = None) -> np.
     return out
 
 
-@dataclass
-class GridMask:
-    """An object probability on a (h, w) grid over an (H, W) image, ready to be brought to the
-    image: ``at_image`` is ``a`` and ``b`` resized to the image (bilinear) and applied to its grey
-    ``guide``, ``a guide + b``; ``on_grid`` the same on the grid, with ``grid_guide`` (the grey
-    reduced to the grid).  Both clipped to [0, 1], float32.  Without a filter ``a`` is None and ``b``
-    the probability itself (``guide`` and ``grid_guide`` None)."""
-
-    a: np.ndarray | None
-    b: np.ndarray
-    guide: np.ndarray | None
-    grid_guide: np.ndarray | None
-    shape: tuple[int, int]
-
-    def on_grid(self) -> np.ndarray:
-        q = self.b if self.a is None else self.a * self.grid_guide + self.b
-        return np.clip(q, 0.0, 1.0)
-
-    def at_image(self) -> np.ndarray:
-        if self.a is None:
-            q = self.b if self.b.shape == self.shape else resize_mask(self.b, *self.shape)
-        elif self.a.shape == self.shape:
-            q = self.a * self.guide + self.b
-        else:
-            q = resize_mask(self.a, *self.shape) * self.guide + resize_mask(self.b, *self.shape)
-        return np.clip(q, 0.0, 1.0)
-
-
-def fit_guided(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float) -> GridMask:
+def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float) -> np.ndarray:
     """``p`` (h, w) in [0, 1], an object probability on a grid over the whole of ``rgb`` (H, W, 3)
-    uint8 (the foreground network's, or the image's own pixels), fitted to be brought to the
-    image's resolution with its grey image (luma) as the guide: He, Sun and Tang's guided filter
-    (ECCV 2010), in the fast form of He and Sun (2015) where the grid is coarser than the image.  On
-    the grid, in every (2 r + 1)² window (``r``: ``radius`` in grid pixels, rounded, at least 1),
-    ``p`` is fitted as a linear function ``a I + b`` of the guide reduced to the grid, by least
-    squares with the regulariser ``eps`` on ``a``; the fits of the windows over a grid point are
-    averaged (:class:`GridMask`'s ``a``, ``b``), and ``a``, ``b`` resized to the image give
-    ``a I + b`` at every pixel of the image.  Where the image has an edge the mask follows it (the
-    edges and thin parts a low-resolution mask blurs); where the image is flat the mask is
-    smoothed.  The cost is the grid's, plus a few operations per image pixel."""
+    uint8 (the foreground network's, or the image's own pixels), brought to the image's resolution
+    with its grey image (luma) as the guide: He, Sun and Tang's guided filter (ECCV 2010), in the
+    fast form of He and Sun (2015) where the grid is coarser than the image.  On the grid, in every
+    (2 r + 1)² window (``r``: ``radius`` in grid pixels, rounded, at least 1), ``p`` is fitted as a
+    linear function ``a I + b`` of the guide reduced to the grid, by least squares with the
+    regulariser ``eps`` on ``a``;
+    the fits of the windows over a grid point are averaged, and ``a``, ``b`` resized to the image
+    (bilinear) give ``a I + b`` at every pixel of the image.  Where the image has an edge the mask
+    follows it (the edges and thin parts a low-resolution mask blurs); where the image is flat the
+    mask is smoothed.  The cost is the grid's, plus a few operations per image pixel.  Float32
+    (H, W), clipped to [0, 1]."""
     from scipy import ndimage
 
     p = np.asarray(p, np.float32)
@@ -446,28 +419,21 @@ def fit_guided(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float) -> Gri
 
     mean_i, mean_p = box(g), box(p)
     a = (box(g * p) - mean_i * mean_p) / (box(g * g) - mean_i * mean_i + np.float32(eps))
-    return GridMask(box(a), box(mean_p - a * mean_i), guide, g, (H, W))
-
-
-def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float) -> np.ndarray:
-    """:func:`fit_guided`'s mask at the image's resolution: float32 (H, W) in [0, 1]."""
-    return fit_guided(rgb, p, radius, eps).at_image()
-
-
-def grid_mask(rgb: np.ndarray, p: np.ndarray, spec: MaskSpec) -> GridMask:
-    """An object probability ``p`` on a grid over the whole of ``rgb`` (the network's ``spec.size``
-    square, or the image's own pixels), ready to be brought to the image: through ``spec``'s guided
-    filter (:func:`fit_guided`, its radius given in the network's pixels, scaled to the grid), else
-    resized (bilinear)."""
-    p = np.asarray(p, np.float32)
-    if spec.guide > 0:
-        return fit_guided(rgb, p, spec.guide * max(p.shape) / spec.size, spec.guide_eps)
-    return GridMask(None, p, None, None, rgb.shape[:2])
+    a_mean, b_mean = box(a), box(mean_p - a * mean_i)
+    if (h, w) != (H, W):
+        a_mean, b_mean = resize_mask(a_mean, H, W), resize_mask(b_mean, H, W)
+    return np.clip(a_mean * guide + b_mean, 0.0, 1.0)
 
 
 def to_image(rgb: np.ndarray, p: np.ndarray, spec: MaskSpec) -> np.ndarray:
-    """:func:`grid_mask` at the image's (H, W): float32 in [0, 1]."""
-    return grid_mask(rgb, p, spec).at_image()
+    """An object probability ``p`` on a grid over the whole of ``rgb`` (the network's ``spec.size``
+    square, or the image's own pixels) at the image's (H, W), float32 in [0, 1]: through
+    ``spec``'s guided filter (its radius given in the network's pixels, scaled to the grid), else
+    resized (bilinear)."""
+    p = np.asarray(p, np.float32)
+    if spec.guide > 0:
+        return guided_filter(rgb, p, spec.guide * max(p.shape) / spec.size, spec.guide_eps)
+    return np.clip(p if p.shape == rgb.shape[:2] else resize_mask(p, *rgb.shape[:2]), 0.0, 1.0)
 
 
 def object_square(box: tuple[int, int, int, int], height: int, width: int, margin: float) -> tuple[int, int, int, int]:
@@ -489,44 +455,31 @@ def refine_square(box: tuple[int, int, int, int], height: int, width: int,
     return None if (y1 - y0) * (x1 - x0) >= spec.refine * height * width else (y0, y1, x0, x1)
 
 
-def grid_box(box: tuple[int, int, int, int], grid: tuple[int, int], height: int,
-             width: int) -> tuple[int, int, int, int]:
-    """A box (top, left, bottom, right), exclusive, of cells of a ``grid`` (rows, columns) laid over a
-    height x width image, in the image's pixels: the pixels those cells cover, rounded outward."""
-    (gh, gw), (top, left, bottom, right) = grid, box
-    return top * height // gh, left * width // gw, -(-bottom * height // gh), -(-right * width // gw)
-
-
 def object_mask(rgb: np.ndarray, segment, spec: MaskSpec) -> np.ndarray:
     """(H, W) float32 object mask of an opaque image from ``segment`` (the foreground network: an
     (h, w, 3) uint8 image to its object probability on a grid over the whole image, the network's
     ``spec.size`` square or the image's own pixels), brought to the image (:func:`to_image`: the
     guided filter of ``spec``), specks removed (:func:`clean_mask`; NoObjectError when nothing is
-    left).  A small object in a large photo is segmented again in its square (see
-    :class:`MaskSpec`), and that second mask is the answer, zero outside the square.  The square is
-    placed by the first look's mask filtered on the network's grid (:meth:`GridMask.on_grid`: the
-    box the full-size mask would give, to a grid cell, without its cost); where there is no second
-    look, or it finds nothing, the first look is brought to the photo instead (the same fit), so
-    the full-size filter and clean-up run once, on the mask that is the answer."""
+    left); a small object in a large photo is segmented again in its square (see
+    :class:`MaskSpec`), the second mask replacing the first there and clearing it elsewhere
+    (unless it finds nothing: then the first stands)."""
     h, w = rgb.shape[:2]
-    first = grid_mask(rgb, segment(rgb), spec)
+
+    def look(image: np.ndarray) -> np.ndarray:
+        return to_image(image, segment(image), spec)
+
+    mask = clean_mask(look(rgb), spec)
+    square = refine_square(mask_bounds(mask > 0.5), h, w, spec)
+    if square is None or min(square[1] - square[0], square[3] - square[2]) < spec.refine_side:
+        return mask
+    y0, y1, x0, x1 = square
     try:
-        coarse = clean_mask(first.on_grid(), spec)
-        square = refine_square(grid_box(mask_bounds(coarse > 0.5), coarse.shape, h, w), h, w, spec)
-    except NoObjectError:                # nothing on the grid: the full-size mask decides, as without a second look
-        square = None
-    if square is not None and min(square[1] - square[0], square[3] - square[2]) >= spec.refine_side:
-        y0, y1, x0, x1 = square
-        crop = np.ascontiguousarray(rgb[y0:y1, x0:x1])
-        try:
-            part = clean_mask(to_image(crop, segment(crop), spec), spec, h * w)
-        except NoObjectError:            # the closer look lost the object: the first look's mask stands
-            pass
-        else:
-            fine = np.zeros((h, w), np.float32)
-            fine[y0:y1, x0:x1] = part
-            return fine
-    return clean_mask(first.at_image(), spec)
+        part = clean_mask(look(np.ascontiguousarray(rgb[y0:y1, x0:x1])), spec, h * w)
+    except NoObjectError:                # the closer look lost the object: keep the first look's mask
+        return mask
+    fine = np.zeros_like(mask)
+    fine[y0:y1, x0:x1] = part
+    return fine
 
 
 def mask_iou(ours: np.ndarray, truth: np.ndarray) -> float:

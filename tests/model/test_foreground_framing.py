@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from model.preprocess import (ImageError, ImageSpec, MaskSpec, NoObjectError, clean_mask, frame_object, grid_box,
+from model.preprocess import (ImageError, ImageSpec, MaskSpec, NoObjectError, clean_mask, frame_object,
                               mask_bounds, mask_input, mask_output, object_mask, object_square, resize_mask,
                               to_image)
 
@@ -158,6 +158,27 @@ def test_a_small_square_is_looked_at_again_only_by_a_network_trained_for_it():
     assert net.calls[1] == (84, 84)
 
 
+def test_a_second_look_must_find_an_object_of_the_whole_photos_minimum_area():
+    """The second look's mask counts against the whole photo's area: a piece the closer look keeps,
+    large in its square but under ``min_area`` of the photo, is no object, and the first look stands."""
+    rgb, truth = photo(h=800, w=1200, boxes=((560, 900, 680, 1080),))          # 21,600 px: 2.25% of the photo
+    looks = []
+
+    def fragment(img):                                   # the second look sees a 20 x 20 px piece of it
+        looks.append(img.shape[:2])
+        if len(looks) == 1:
+            return Net()(img)
+        mask = np.zeros(img.shape[:2], np.float32)
+        cy, cx = img.shape[0] // 2, img.shape[1] // 2
+        mask[cy - 10:cy + 10, cx - 10:cx + 10] = 1      # 400 px: 0.04% of the photo, 0.6% of its square
+        return mask
+
+    spec = MaskSpec(min_area=0.002)
+    mask = object_mask(rgb, fragment, spec)
+    assert len(looks) == 2 and 400 > spec.min_area * (looks[1][0] * looks[1][1])
+    assert np.array_equal(mask > 0.5, truth > 0.5)                             # the first look's mask
+
+
 def test_the_object_square_is_centred_on_the_box_and_clipped_to_the_image():
     assert object_square((40, 60, 60, 100), 200, 300, 0.25) == (20, 80, 50, 110)
     assert object_square((40, 60, 60, 100), 200, 300, 0.0) == (30, 70, 60, 100)
@@ -299,70 +320,6 @@ def test_a_network_that_answers_on_its_grid_is_brought_to_the_photo():
     f = frame_object(big, SPEC, counted, mask_spec=MaskSpec(guide=2, guide_eps=3e-5))
     assert looks[0] == (800, 1200) and len(looks) == 2 and looks[1][0] == looks[1][1] < 400
     assert f.box == (560, 900, 680, 1080) and np.array_equal(f.mask > 127, small_truth > 0.5)
-
-
-def test_a_grid_box_covers_the_pixels_of_its_cells():
-    assert grid_box((0, 0, 128, 128), (128, 128), 800, 1200) == (0, 0, 800, 1200)
-    assert grid_box((10, 20, 30, 41), (128, 128), 800, 1200) == (62, 187, 188, 385)   # 62.5, 187.5, 187.5, 384.4
-    assert grid_box((3, 4, 9, 7), (120, 200), 120, 200) == (3, 4, 9, 7)               # the image's own grid
-    rng = np.random.default_rng(1)
-    for _ in range(200):                  # every pixel of a cell in the box lies in the box's pixels, no other row or column
-        gh, gw, h, w = (int(v) for v in rng.integers(1, 300, 4))
-        t, b = sorted(int(v) for v in rng.choice(gh + 1, 2, replace=False))
-        l, r = sorted(int(v) for v in rng.choice(gw + 1, 2, replace=False))
-        rows, cols = np.arange(h) * gh // h, np.arange(w) * gw // w       # each pixel's cell (nearest)
-        y0, x0, y1, x1 = grid_box((t, l, b, r), (gh, gw), h, w)
-        inside = lambda c, a, z: (c >= a) & (c < z)
-        assert (np.flatnonzero(inside(rows, t, b)) >= y0).all() and (np.flatnonzero(inside(rows, t, b)) < y1).all()
-        assert (np.flatnonzero(inside(cols, l, r)) >= x0).all() and (np.flatnonzero(inside(cols, l, r)) < x1).all()
-        assert y1 - y0 <= (b - t) * h / gh + 2 and x1 - x0 <= (r - l) * w / gw + 2
-
-
-def test_the_first_look_is_brought_to_the_photo_only_when_it_is_the_answer(monkeypatch):
-    """A small object in a large photo: its square is placed by the first look filtered on the
-    network's grid, and only the second look is brought to full size; when the second look finds
-    nothing the first look's mask is brought to the photo, as it is when there is no second look."""
-    from model.preprocess import GridMask
-
-    brought = []
-    real = GridMask.at_image
-    monkeypatch.setattr(GridMask, "at_image", lambda self: brought.append(self.shape) or real(self))
-    spec = MaskSpec(guide=2, guide_eps=3e-5)
-    big, truth = photo(h=800, w=1200, boxes=((560, 900, 680, 1080),))
-    on_grid = lambda img: resize_mask(Net()(img), 128, 128)
-    mask = object_mask(big, on_grid, spec)
-    assert len(brought) == 1 and brought[0][0] == brought[0][1] < 400           # the square only
-    assert np.array_equal(mask > 0.5, truth > 0.5)
-    brought.clear()
-    looks = []
-
-    def loses_it(img):                                  # the second look sees nothing
-        looks.append(img.shape[:2])
-        return on_grid(img) * (len(looks) == 1)
-
-    first_only = object_mask(big, loses_it, spec)
-    assert len(looks) == 2 and brought == [looks[1], (800, 1200)]
-    assert np.array_equal(first_only, clean_mask(to_image(big, on_grid(big), spec), spec))
-    brought.clear()
-    full, _ = photo(h=800, w=1200, boxes=((100, 100, 700, 1100),))              # a large object: one look
-    object_mask(full, on_grid, spec)
-    assert brought == [(800, 1200)]
-
-
-def test_the_mask_on_its_grid_is_the_full_size_mask_reduced():
-    """:meth:`GridMask.on_grid` (what places the second look) agrees with the mask brought to the
-    image and reduced to the grid, with and without the guided filter."""
-    from model.preprocess import grid_mask
-
-    rgb, truth = photo(h=640, w=960, boxes=((200, 300, 420, 700), (100, 100, 140, 600)))
-    p = resize_mask(Net()(rgb), 128, 128)
-    for spec in (MaskSpec(), MaskSpec(guide=2, guide_eps=3e-5)):
-        m = grid_mask(rgb, p, spec)
-        small, full = m.on_grid(), m.at_image()
-        assert small.shape == (128, 128) and full.shape == (640, 960)
-        assert np.abs(resize_mask(full, 128, 128) - small).mean() < 0.01
-        placed = grid_box(mask_bounds(small > 0.5), small.shape, 640, 960)     # within a cell of the truth's box
-        assert np.abs(np.subtract(placed, mask_bounds(truth > 0.5))).max() <= 960 / 128, (spec, placed)
 
 
 def test_the_guided_filter_brings_a_coarse_grid_to_the_image_along_its_edges():
