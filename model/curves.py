@@ -121,6 +121,15 @@ def validation_chamfer(run: str | Path, data: str | Path, per_category: int = 4,
     return out
 
 
+def lowest_step(chamfer: dict[int, float]) -> int:
+    """The step with the lowest finite figure, the earlier on a tie: the checkpoint chosen on the
+    validation split.  ValueError when none is finite."""
+    measured = [step for step, value in chamfer.items() if np.isfinite(value)]
+    if not measured:
+        raise ValueError("no kept step has a validation Chamfer distance (none kept, or every output empty)")
+    return min(measured, key=lambda step: (chamfer[step], step))
+
+
 def with_chamfer(curves: RunCurves, chamfer: dict[int, float]) -> RunCurves:
     """``curves`` with the validation term ``chamfer_x1e3`` (NaN at validated steps without a figure;
     ``curves`` itself when there is no figure)."""
@@ -213,9 +222,8 @@ def main(argv: list[str] | None = None) -> int:
                 chamfer = validation_chamfer(run, args.chamfer, args.per_category, args.resolution)
                 curves[i] = with_chamfer(curves[i], chamfer)
                 if chamfer:
-                    measured = [k for k, v in chamfer.items() if np.isfinite(v)]
-                    best = (f"lowest at step {min(measured, key=lambda k: (chamfer[k], k))}" if measured
-                            else "every output empty")
+                    measured = any(np.isfinite(v) for v in chamfer.values())
+                    best = f"lowest at step {lowest_step(chamfer)}" if measured else "every output empty"
                     print(f"{curves[i].name}: validation Chamfer x10^3 " +
                           ", ".join(f"{k}: {v:.3f}" for k, v in sorted(chamfer.items())) + f"; {best}")
                 else:

@@ -30,6 +30,7 @@ class TrainConfig:
     out: str
     iters: int = 2000
     epochs: float | None = None
+    until: int | None = None                   # end at this step (None: iters); the schedule spans iters
     batch_size: int = 8
     optimizer: str = "adam"
     lr: float | None = None
@@ -81,6 +82,8 @@ class TrainConfig:
                 raise ValueError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
         if self.limit is not None and self.limit < 1:
             raise ValueError(f"--limit must be at least 1, got {self.limit}")
+        if self.until is not None and self.until < 1:
+            raise ValueError(f"--until must be at least 1, got {self.until}")
         if self.epochs is not None and not self.epochs > 0:
             raise ValueError(f"--epochs must be positive, got {self.epochs}")
         if self.init is not None and self.teacher is not None:

@@ -145,6 +145,9 @@ class Trainer:
             self.val_set = None
         if cfg.epochs is not None:
             cfg.iters = max(1, math.ceil(cfg.epochs * len(self.train_set) / cfg.batch_size))
+        if cfg.until is not None and cfg.until > cfg.iters:
+            raise ValueError(f"--until {cfg.until} is past the run's last step ({cfg.iters}); give at most that")
+        self.end = cfg.iters if cfg.until is None else cfg.until   # the step this invocation trains to
         torch.manual_seed(cfg.seed)
         self.device = torch.device(cfg.device)
         self.model = build_model(cfg).to(self.device)
@@ -303,17 +306,18 @@ class Trainer:
         self._owns_group = False
 
     def run(self) -> dict:
-        """Train to ``cfg.iters`` steps; returns (and on rank 0 prints) a one-line summary."""
+        """Train to step :attr:`end` (already past it: no step); returns (and on rank 0 prints) a one-line summary."""
         from tqdm import tqdm
 
-        bar = tqdm(total=self.cfg.iters, initial=self.step, desc=f"{self.cfg.task} {self.cfg.arch}", unit="step",
+        bar = tqdm(total=self.end, initial=self.step, desc=f"{self.cfg.task} {self.cfg.arch}", unit="step",
                    disable=not self.cfg.progress or self.rank != 0)
         t0, start = time.time(), self.step
-        summary: dict = {"run": str(self.out), "steps": self.cfg.iters}
-        self.loader = (Prefetcher(self, self.cfg.loader_workers, self.step, self.cfg.iters)
-                       if self.cfg.loader_workers > 0 and self.step < self.cfg.iters else None)
+        summary: dict = {"run": str(self.out), "steps": self.end}
+        self.loader = (Prefetcher(self, self.cfg.loader_workers, self.step, self.end)
+                       if self.cfg.loader_workers > 0 and self.step < self.end else None)
         try:
             self._loop(bar, t0, summary)
+            summary["steps"] = self.step                            # past end already: where it is
         finally:
             if self.loader is not None:
                 self.loader.close()
@@ -325,20 +329,20 @@ class Trainer:
         return summary
 
     def _loop(self, bar, t0: float, summary: dict) -> None:
-        while self.step < self.cfg.iters:
+        while self.step < self.end:
             losses = self.train_step(None if self.loader is None else self.loader.next())
             summary["train"] = losses
             bar.update()
             bar.set_postfix(loss=f"{losses['total']:.4f}")
-            if self.step % 10 == 0 or self.step == self.cfg.iters:
+            if self.step % 10 == 0 or self.step == self.end:
                 self.log({"step": self.step, "split": "train", "lr": self.sched.get_last_lr()[0],
                           "seconds": time.time() - t0, **losses})
-            due = self.step % self.cfg.val_every == 0 or self.step == self.cfg.iters
+            due = self.step % self.cfg.val_every == 0 or self.step == self.end
             if self.val_set is not None and due and self.rank == 0:   # one process validates
                 summary["val"] = self.validate()
                 self.log({"step": self.step, "split": "val", **summary["val"]})
                 self.snapshot(summary["val"])
-            if self.step % self.cfg.ckpt_every == 0 or self.step == self.cfg.iters:
+            if self.step % self.cfg.ckpt_every == 0 or self.step == self.end:
                 self.save()
 
 

@@ -52,6 +52,7 @@ def _mains():
     from model.evaluate import main as evaluate_main
     from model.figures import main as figures_main
     from model.curves import main as curves_main
+    from model.choose import main as choose_main
     from model.octree.__main__ import main as octree_main
     from model.release import main as release_main
     from model.results_table import main as table_main
@@ -76,7 +77,7 @@ def _mains():
             "bench.octree_build": bench_build_main, "bench.octree_label_changes": bench_labels_main,
             "bench.octree_versions": bench_versions_main, "bench.symmetry": bench_symmetry_main, "model.train": train_main, "model.evaluate": evaluate_main, "model.data": data_main,
             "model.octree": octree_main, "model.results_table": table_main, "model.figures": figures_main,
-            "model.curves": curves_main,
+            "model.curves": curves_main, "model.choose": choose_main,
             "model.release": release_main, "model.calibrate": calibrate_main, "export": export_main,
             "export.quantize": quantize_main, "service": service_main, "bench.onnx_decode": bench_onnx_main,
             "bench.load": bench_load_main, "bench.octree_scaling": bench_scaling_main,

@@ -59,6 +59,29 @@ def test_checkpoint_resumes_to_identical_weights(tiny_data, tmp_path):
         Trainer(config(tiny_data, tmp_path / "a", channels=8))
 
 
+def test_until_ends_a_run_early_on_its_full_schedule_and_a_rerun_goes_on(tiny_data, tmp_path):
+    """--until: the run's first steps of the full schedule (the rate as the full run's), validated
+    and kept at the step it ends at; rerun without it, it goes on to the weights of the straight run;
+    a run already past --until trains no step."""
+    straight = Trainer(config(tiny_data, tmp_path / "a", iters=7))
+    straight.run()
+    early = Trainer(config(tiny_data, tmp_path / "b", iters=7, until=3))
+    summary = early.run()
+    assert early.step == 3 and summary["steps"] == 3 and (tmp_path / "b" / "steps" / "000003").is_dir()
+    rows = [json.loads(l) for l in (tmp_path / "b" / "metrics.jsonl").read_text().splitlines()]
+    # the rate drops 10x at int(7 * 2/7) = 2 (then 4, 5): once by step 3; on a 3-step schedule thrice
+    assert [r["lr"] for r in rows if r["split"] == "train"] == [pytest.approx(1e-4)]
+    assert torch.load(tmp_path / "b" / "checkpoint.pt", weights_only=False)["step"] == 3
+    past = Trainer(config(tiny_data, tmp_path / "b", iters=7, until=2))
+    assert past.run()["steps"] == 3 and past.step == 3
+    resumed = Trainer(config(tiny_data, tmp_path / "b", iters=7))
+    resumed.run()
+    a, b = straight.model.state_dict(), resumed.model.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    with pytest.raises(ValueError, match="--until 9 is past the run's last step"):
+        Trainer(config(tiny_data, tmp_path / "c", iters=7, until=9))
+
+
 def _free_port():
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -148,6 +171,8 @@ def test_train_and_evaluate_commands_end_to_end(tiny_data, tmp_path):
     (["--batch-size", "-1"], "--batch-size must be at least 1"),
     (["--lr", "0"], "--lr must be positive"),
     (["--epochs", "-2"], "--epochs must be positive"),
+    (["--until", "0"], "--until must be at least 1"),
+    (["--iters", "4", "--until", "5"], "--until 5 is past the run's last step (4)"),
 ])
 def test_train_rejects_bad_settings_in_one_line(tiny_data, tmp_path, capsys, extra, needle):
     from model.train.__main__ import main
