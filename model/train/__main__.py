@@ -43,8 +43,8 @@ def common_options() -> argparse.ArgumentParser:
     c.add_argument("--iters", type=int, default=2000, help="training steps (default 2000)")
     c.add_argument("--epochs", type=float, default=None, help="alternative to --iters: passes over the training split")
     c.add_argument("--until", type=int, default=None, metavar="STEP",
-                   help="end the run at this step (default: the last); the rate schedule still spans --iters, "
-                        "so the run is the full run's first STEP steps, and a finished run can be ended early")
+                   help="end the run at this step (default: the last, --iters); the rate schedule still spans "
+                        "--iters, so the run is the full run's first STEP steps, and rerunning without it goes on")
     c.add_argument("--batch-size", type=int, default=8, help="shapes per step over all processes (default 8)")
     c.add_argument("--optimizer", choices=("adam", "sgd"), default="adam",
                    help="adam (default) or sgd with momentum 0.9 (the paper's); the rate drops 10x at 2/7, 4/7, 5/7")
