@@ -20,7 +20,7 @@ from pathlib import Path
 
 from .cli import command_parser
 from .curves import lowest_step, validation_chamfer
-from .files import json_text, write_atomic
+from .files import atomic_path, json_text, write_atomic
 
 
 @dataclass(frozen=True)
@@ -52,7 +52,8 @@ def choose(run: str | Path, data: str | Path, out: str | Path, per_category: int
                       "chamfer_x1e3": {str(k): v for k, v in sorted(chamfer.items())}}
     out.mkdir(parents=True, exist_ok=True)
     (out / "model.json").unlink(missing_ok=True)
-    shutil.copyfile(source / "model.pt", out / "model.pt")
+    with atomic_path(out / "model.pt") as tmp:
+        shutil.copyfile(source / "model.pt", tmp)
     write_atomic(out / "model.json", json_text(meta).encode())
     return Choice(step, chamfer)
 

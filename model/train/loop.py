@@ -312,12 +312,12 @@ class Trainer:
         bar = tqdm(total=self.end, initial=self.step, desc=f"{self.cfg.task} {self.cfg.arch}", unit="step",
                    disable=not self.cfg.progress or self.rank != 0)
         t0, start = time.time(), self.step
-        summary: dict = {"run": str(self.out), "steps": self.end}
+        summary: dict = {"run": str(self.out)}
         self.loader = (Prefetcher(self, self.cfg.loader_workers, self.step, self.end)
                        if self.cfg.loader_workers > 0 and self.step < self.end else None)
         try:
             self._loop(bar, t0, summary)
-            summary["steps"] = self.step                            # past end already: where it is
+            summary["steps"] = self.step                            # end, or where it is when already past
         finally:
             if self.loader is not None:
                 self.loader.close()
