@@ -197,6 +197,11 @@ def test_a_run_started_from_another_runs_weights(tiny_data, runs, tmp_path, caps
     tuned.run()
     meta = package(tmp_path / "b", tiny_data, tmp_path / "shipped", RECIPES["foreground"], ["foreground"], by_recipe=False)
     assert meta["init"]["path"] == str(tmp_path / "a") and meta["config"]["crop_share"] == 0.5
+    kept = sorted((tmp_path / "b" / "steps").iterdir())[-1]       # a step the run kept: its run's init
+    assert package(kept, tiny_data, tmp_path / "kept", RECIPES["foreground"], ["foreground"],
+                   by_recipe=False)["init"] == meta["init"]
+    assert package(tmp_path / "a", tiny_data, tmp_path / "scratch", RECIPES["foreground"], ["foreground"],
+                   by_recipe=False)["init"] is None
     fresh = Trainer(config(tiny_data, tmp_path / "c", iters=2, **FG)).model.state_dict()
     assert any(not torch.equal(fresh[k], v) for k, v in source.items() if v.is_floating_point())
     args = ["foreground", "--data", str(tiny_data), "--depth", "5", "--out", str(tmp_path / "d"), "--quiet",
