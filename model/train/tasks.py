@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import shutil
 from pathlib import Path
 from typing import Protocol
 
@@ -139,7 +140,10 @@ class ImageTask:
         """The teacher's codes of every shape of ``data`` (an image teacher: of every view), computed
         once per run and split and kept in ``RUN/teacher-codes/`` under a key of the teacher's
         weights, the records' checksums and the image spec, so a resumed run reads them back
-        (at depth 7 an image teacher's codes of 8,342 shapes' 24 views take half an hour on 2 cores)."""
+        (at depth 7 an image teacher's codes of 8,342 shapes' 24 views take half an hour on 2 cores).
+        They are saved in parts of ``TEACHER_CODES_PART`` shapes as they are made
+        (``<split>-<key>/<first shape>.pt``), so an interrupted computation goes on from its last part;
+        the parts are joined into ``<split>-<key>.pt`` at the end."""
         model, tcfg = self._teacher(cfg)
         spec = tcfg.image_spec() if tcfg.task == "image" else None
         digest = hashlib.sha256(json.dumps([tcfg.task, repr(spec), data.record_sha256]).encode())
@@ -149,20 +153,19 @@ class ImageTask:
         path = Path(cfg.out) / "teacher-codes" / f"{split}-{digest.hexdigest()[:16]}.pt"
         if path.is_file():
             return torch.load(path)
+        parts = path.with_suffix("")
+        parts.mkdir(parents=True, exist_ok=True)
         codes = []
-        with torch.no_grad():
-            if spec is not None:
-                for s in data.samples:
-                    views = np.stack([prepare_image(v, spec) for v in s.images])
-                    codes.append(model.encoder(torch.from_numpy(views))[None])
-            else:
-                for s in range(0, len(data), 16):
-                    octree, _ = data.batch(np.arange(s, min(len(data), s + 16)))
-                    codes.append(model.encoder(OctreeTensors.from_octree(octree)))
+        for start in range(0, len(data), TEACHER_CODES_PART):
+            part = parts / f"{start:06d}.pt"
+            if not part.is_file():
+                with atomic_path(part) as tmp:
+                    torch.save(_codes_of(model, spec, data, start, min(len(data), start + TEACHER_CODES_PART)), tmp)
+            codes.append(torch.load(part))
         latents = torch.cat(codes)
-        path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(path) as tmp:
             torch.save(latents, tmp)
+        shutil.rmtree(parts)
         return latents
 
     def build_model(self, cfg):
@@ -272,6 +275,25 @@ def _image_to_shape(cfg: TrainConfig) -> ImageToShape:
     return ImageToShape(cfg.encoder, cfg.arch, cfg.depth, latent=cfg.latent, base_channels=cfg.channels,
                         encoder_width=cfg.encoder_width, hidden=cfg.pred_hidden,
                         structure_loss=cfg.structure_loss, decoder_blocks=cfg.decoder_blocks)
+
+
+TEACHER_CODES_PART = 512        # shapes per saved part of a split's teacher codes
+
+
+def _codes_of(model: nn.Module, spec: ImageSpec | None, data: RecordSet, start: int, stop: int) -> torch.Tensor:
+    """The teacher's codes of shapes ``start``..``stop - 1`` of ``data``: an image teacher's of every
+    view (shapes x views x latent), an autoencoder's of each shape's octree, 16 shapes at a time."""
+    codes = []
+    with torch.no_grad():
+        if spec is not None:
+            for s in (data.samples[i] for i in range(start, stop)):
+                views = np.stack([prepare_image(v, spec) for v in s.images])
+                codes.append(model.encoder(torch.from_numpy(views))[None])
+        else:
+            for s in range(start, stop, 16):
+                octree, _ = data.batch(np.arange(s, min(stop, s + 16)))
+                codes.append(model.encoder(OctreeTensors.from_octree(octree)))
+    return torch.cat(codes)
 
 
 @functools.lru_cache(maxsize=4)

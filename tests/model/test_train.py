@@ -284,6 +284,38 @@ def test_a_students_teacher_codes_are_kept_with_the_run_and_read_back_on_resume(
     assert not torch.equal(other.train_set.latents, first.train_set.latents)
 
 
+def test_teacher_codes_interrupted_go_on_from_their_last_saved_part(tiny_data, tmp_path, monkeypatch):
+    """The codes are saved in parts as they are made: a run stopped while making them keeps the
+    parts it finished, and the next start computes only the rest, joining the same codes."""
+    import model.train.tasks as tasks
+
+    _, kw = _teacher_and_student(tiny_data, tmp_path, 2, 2)
+    whole = Trainer(config(tiny_data, tmp_path / "whole", **kw)).train_set.latents
+    monkeypatch.setattr(tasks, "TEACHER_CODES_PART", 8)
+    made, real, interrupt = [], tasks._codes_of, [True]
+
+    class Stopped(Exception):
+        pass
+
+    def failing(model, spec, data, start, stop):
+        if start >= 8 and interrupt.pop() if interrupt else False:
+            raise Stopped                                          # stopped after the first part
+        made.append((len(data), start))
+        return real(model, spec, data, start, stop)
+
+    monkeypatch.setattr(tasks, "_codes_of", failing)
+    assert len(whole) > 16                                        # three parts
+    with pytest.raises(Stopped):
+        Trainer(config(tiny_data, tmp_path / "img", **kw))
+    parts = sorted((tmp_path / "img" / "teacher-codes").glob("train-*/*.pt"))
+    n = len(whole)
+    assert [p.name for p in parts] == ["000000.pt"] and made == [(n, 0)]
+    resumed = Trainer(config(tiny_data, tmp_path / "img", **kw)).train_set.latents
+    assert [m for m in made if m[0] == n] == [(n, 0), (n, 8), (n, 16)]  # the first part read, not made again
+    assert torch.equal(resumed, whole)
+    assert not list((tmp_path / "img" / "teacher-codes").glob("train-*/"))    # joined, parts removed
+
+
 def test_image_encoder_regressed_onto_an_autoencoders_latents_uses_its_decoder(tiny_data, tmp_path):
     teacher, kw = _teacher_and_student(tiny_data, tmp_path, 3, 4)
     student = Trainer(config(tiny_data, tmp_path / "img", **kw))
