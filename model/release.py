@@ -108,7 +108,7 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
     weights).  ``by_recipe=False``: the run was not trained by the recipe's commands, so none are
     recorded (its configuration and steps are); ``data_by_recipe=False``: nor was ``data`` built by
     its build command (the manifest's settings are recorded)."""
-    from .train.config import INIT_FILE, STEPS_DIR, read_run, write_weights
+    from .train.config import read_run, write_weights
 
     saved = read_run(run)                  # a run folder, or a checkpoint folder such as a step the run kept
     config = saved.meta["config"]
@@ -121,7 +121,7 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
         "task": recipe.task,
         "config": {k: v for k, v in config.items() if k not in ("data", "out", "progress")},
         "steps": saved.meta["steps"],
-        "init": _init_of(run, INIT_FILE, STEPS_DIR),
+        "init": _init_of(run),
         "calibration": calibration,
         "command": "python -m model.release " + " ".join(shlex.quote(c) for c in command),
         "train_command": ("python -m model.train " + " ".join(shlex.quote(c) for c in recipe.train)
@@ -139,12 +139,14 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
     return write_weights(out, saved.weights, meta)
 
 
-def _init_of(run: Path, init_file: str, steps_dir: str) -> dict | None:
+def _init_of(run: Path) -> dict | None:
     """The weights ``run`` started from (its ``init.json``; a step the run kept, ``RUN/steps/<step>``,
     reads its run's), or None for random weights."""
-    for folder in (run, run.parent.parent if run.parent.name == steps_dir else None):
-        if folder is not None and (folder / init_file).is_file():
-            return json.loads((folder / init_file).read_text())
+    from .train.config import INIT_FILE, STEPS_DIR
+
+    for folder in (run, run.parent.parent if run.parent.name == STEPS_DIR else None):
+        if folder is not None and (folder / INIT_FILE).is_file():
+            return json.loads((folder / INIT_FILE).read_text())
     return None
 
 

@@ -158,10 +158,12 @@ class ImageTask:
         codes = []
         for start in range(0, len(data), TEACHER_CODES_PART):
             part = parts / f"{start:06d}.pt"
-            if not part.is_file():
-                with atomic_path(part) as tmp:
-                    torch.save(_codes_of(model, spec, data, start, min(len(data), start + TEACHER_CODES_PART)), tmp)
-            codes.append(torch.load(part))
+            if part.is_file():
+                codes.append(torch.load(part))
+                continue
+            codes.append(_codes_of(model, spec, data, start, min(len(data), start + TEACHER_CODES_PART)))
+            with atomic_path(part) as tmp:
+                torch.save(codes[-1], tmp)
         latents = torch.cat(codes)
         with atomic_path(path) as tmp:
             torch.save(latents, tmp)
