@@ -167,10 +167,9 @@ def main(argv: list[str] | None = None) -> int:
 def accuracy(depths: list[int], mesh_dir: str) -> int:
     """The ``--accuracy`` table (module docstring)."""
     import trimesh
-    from scipy.spatial import cKDTree
 
-    from model.evaluate import fscore
-    from model.octree.metrics import chamfer_distance
+    from model.evaluate import fscore_threshold
+    from model.octree.metrics import Reference
     from model.surface import surface_mesh
     from model.surface.checks import is_closed
 
@@ -190,19 +189,19 @@ def accuracy(depths: list[int], mesh_dir: str) -> int:
         depth_to = np.full(len(truth_pts), np.inf)
         depth_to[hits[1]] = np.linalg.norm(hits[0] - truth_pts[hits[1]], axis=1)
         thin = float(np.mean(depth_to / tree.normalizations[0].scale < h))
-        threshold = 0.01 * float(np.linalg.norm(truth.max(0) - truth.min(0)))
-        truth_tree = cKDTree(truth)
+        threshold, reference = fscore_threshold(truth), Reference(truth)
         meshes = [surface_mesh(tree, kind, world=False) for kind in ("patches", "watertight")]
         mc_verts, mc_faces = marching_cubes_surface(tree)
         cd, f, nc = [], [], []
         for verts, faces in [(m.vertices, m.faces) for m in meshes] + [(mc_verts, mc_faces)]:
             surface = trimesh.Trimesh(verts, faces, process=False)
             pts, pid = trimesh.sample.sample_surface(surface, 100_000, seed=1)
-            cd.append(chamfer_distance(truth, pts) * 1e3)
-            f.append(fscore(truth, pts, threshold))
+            near = reference.nearest(pts)
+            cd.append(near.chamfer() * 1e3)
+            f.append(near.fscore(threshold))
             # normal consistency: |cos| between each point's normal and its nearest neighbour's, both ways
-            to_truth = np.abs(np.einsum("ij,ij->i", surface.face_normals[pid], normals[truth_tree.query(pts)[1]]))
-            to_pred = np.abs(np.einsum("ij,ij->i", normals, surface.face_normals[pid][cKDTree(pts).query(truth)[1]]))
+            to_truth = np.abs(np.einsum("ij,ij->i", surface.face_normals[pid], normals[near.from_index]))
+            to_pred = np.abs(np.einsum("ij,ij->i", normals, surface.face_normals[pid][near.to_index]))
             nc.append((to_truth.mean() + to_pred.mean()) / 2)
         yes = {True: "yes", False: "NO"}
         print(f"| {mesh_name} | {depth} | {thin:.0%} | {cd[0]:.4f} | {cd[1]:.4f} | {cd[1] / cd[0]:.2f} | {cd[2]:.4f} "

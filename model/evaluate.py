@@ -38,7 +38,6 @@ from pathlib import Path
 import numpy as np
 import torch
 import trimesh
-from scipy.spatial import cKDTree
 
 from .align import icp
 from .checkpoint import load_model
@@ -48,7 +47,7 @@ from .networks import AtlasNetDecoder, OctreeDecoder, PointSetDecoder, TorchStep
 from .networks.decoder import teacher_skips
 from .nn.tensors import OctreeTensors
 from .octree import LEAF, Octree
-from .octree.metrics import chamfer_distance, mean_squared_distance, missing_part, sample_patches
+from .octree.metrics import Nearest, Reference, mean_squared_distance, missing_part, sample_patches
 from .octree.batch import split_octree
 from .results import category_means
 from .octree.fuse import keep_scan
@@ -150,24 +149,20 @@ FSCORE_SHARE = 0.01
 """F-score threshold: 1% of the truth's bounding-box diagonal (Tatarchenko et al., CVPR 2019)."""
 
 
-def fscore(truth: np.ndarray, pts: np.ndarray, threshold: float) -> float:
-    """The harmonic mean of precision (share of ``pts`` within ``threshold`` of the truth) and
-    recall (share of the truth within ``threshold`` of ``pts``)."""
-    precision = float((cKDTree(truth).query(pts, workers=-1)[0] <= threshold).mean())
-    recall = float((cKDTree(pts).query(truth, workers=-1)[0] <= threshold).mean())
-    return 2 * precision * recall / (precision + recall) if precision + recall else 0.0
+def fscore_threshold(truth: np.ndarray) -> float:
+    """The F-score's distance threshold for a shape: :data:`FSCORE_SHARE` of its diagonal."""
+    return FSCORE_SHARE * float(np.linalg.norm(truth.max(0) - truth.min(0)))
 
 
-def surface_rows(sample, tree: Octree, pts: np.ndarray, seed: int) -> dict:
-    """Chamfer (x1e3) and F-score of both surfaces of a decoded octree against the truth, and
-    whether the closed one is closed.  The patches are measured twice: on ``pts`` (the paper's
-    protocol, one point per sub-patch of the grid) and, like the closed surface, on points drawn
-    uniformly at random by area, as many as ``pts``: random draws leave gaps that a stratified
-    protocol does not, so only draws of the same kind compare the two surfaces."""
-    truth = sample.points
-    threshold = FSCORE_SHARE * float(np.linalg.norm(truth.max(0) - truth.min(0)))
-    row = {"fscore": fscore(truth, pts, threshold)}
-    count = max(len(pts), 1000)
+def surface_rows(sample, truth: Reference, pts: Nearest, tree: Octree, count: int, seed: int) -> dict:
+    """F-score of ``pts`` (the paper's protocol, one point per sub-patch of the grid: their nearest
+    distances to the ``truth``), and Chamfer (x1e3) and F-score of both surfaces of the decoded
+    octree against the truth, and whether the closed one is closed.  The surfaces are measured on
+    ``count`` points drawn uniformly at random by area (as many as ``pts``, at least 1,000): random
+    draws leave gaps that a stratified protocol does not, so only draws of the same kind compare
+    the two surfaces (the patches are measured both ways)."""
+    threshold = fscore_threshold(truth.points)
+    row = {"fscore": pts.fscore(threshold)}
     for kind in SURFACES:
         m = surface_mesh(tree, kind, world=False)
         name = "watertight" if kind == "watertight" else "patches_area"
@@ -177,9 +172,8 @@ def surface_rows(sample, tree: Octree, pts: np.ndarray, seed: int) -> dict:
             row.update({f"{name}_chamfer_x1e3": None, f"{name}_fscore": None})
             continue
         drawn = trimesh.sample.sample_surface(trimesh.Trimesh(m.vertices, m.faces, process=False), count, seed=seed)[0]
-        drawn = truth_view(sample, drawn)
-        row.update({f"{name}_chamfer_x1e3": chamfer_distance(truth, drawn) * 1e3,
-                    f"{name}_fscore": fscore(truth, drawn, threshold)})
+        near = truth.nearest(truth_view(sample, drawn))
+        row.update({f"{name}_chamfer_x1e3": near.chamfer() * 1e3, f"{name}_fscore": near.fscore(threshold)})
     return row
 
 
@@ -324,18 +318,20 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
             pts = truth_view(sample, pts)
             row = {"category": sample.category, "shape_id": sample.shape_id,
                    "truth_nodes": int(sum(sample.octree.nodes_per_depth())), "output_points": int(len(pts)), **frame}
+            truth = Reference(sample.points)
             if len(pts):
-                row["chamfer_x1e3"] = chamfer_distance(sample.points, pts) * 1e3
+                near = truth.nearest(pts)
+                row["chamfer_x1e3"] = near.chamfer() * 1e3
                 if align:
                     moved = icp(pts, sample.points).apply(pts) if len(pts) >= 3 else pts
-                    row["chamfer_icp_x1e3"] = min(row["chamfer_x1e3"], chamfer_distance(sample.points, moved) * 1e3)
+                    row["chamfer_icp_x1e3"] = min(row["chamfer_x1e3"], truth.chamfer(moved) * 1e3)
                 if surfaces:
-                    row.update(surface_rows(sample, tree, pts, seed))
+                    row.update(surface_rows(sample, truth, near, tree, max(len(pts), 1000), seed))
             else:
                 empty += 1
                 row.update({m: None for m in metrics if m != "mask_iou"})
             if sample.partial is not None:        # the do-nothing floor: the input itself
-                row["input_chamfer_x1e3"] = chamfer_distance(sample.points, sample.partial) * 1e3
+                row["input_chamfer_x1e3"] = truth.chamfer(sample.partial) * 1e3
                 row.update(_missing(sample, pts))
             for m in metrics:
                 if row.get(m) is not None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -77,9 +79,50 @@ def _random_in_polygons(verts: np.ndarray, count: np.ndarray, rng: np.random.Gen
     return a + u[:, None] * (b[rows, tri] - a) + v[:, None] * (c[rows, tri] - a)
 
 
+@dataclass(frozen=True)
+class Nearest:
+    """The nearest distances both ways between a reference set R and a point set P:
+    ``to_points[i]`` from R's i-th point to P (its nearest: P[``to_index[i]``]), ``from_points[j]``
+    from P's j-th point to R (its nearest: R[``from_index[j]``])."""
+
+    to_points: np.ndarray
+    from_points: np.ndarray
+    to_index: np.ndarray
+    from_index: np.ndarray
+
+    def chamfer(self) -> float:
+        """:func:`chamfer_distance` (R, P)."""
+        return float((self.to_points ** 2).mean()) + float((self.from_points ** 2).mean())
+
+    def fscore(self, threshold: float) -> float:
+        """The harmonic mean of precision (share of P within ``threshold`` of R) and recall
+        (share of R within ``threshold`` of P)."""
+        precision = float((self.from_points <= threshold).mean())
+        recall = float((self.to_points <= threshold).mean())
+        return 2 * precision * recall / (precision + recall) if precision + recall else 0.0
+
+
+class Reference:
+    """A point set measured against many others (a shape's truth): its k-d tree is built once."""
+
+    def __init__(self, points: np.ndarray):
+        self.points = _nonempty(points)
+        self._tree = cKDTree(self.points)
+
+    def nearest(self, points: np.ndarray) -> Nearest:
+        """The nearest distances both ways between this set and ``points`` (non-empty)."""
+        p = _nonempty(points)
+        (to, to_index), (back, back_index) = cKDTree(p).query(self.points, workers=-1), self._tree.query(p, workers=-1)
+        return Nearest(to, back, to_index, back_index)
+
+    def chamfer(self, points: np.ndarray) -> float:
+        """:func:`chamfer_distance` (this set, ``points``)."""
+        return self.nearest(points).chamfer()
+
+
 def chamfer_distance(ground_truth: np.ndarray, predicted: np.ndarray) -> float:
     """The paper's Chamfer distance: mean squared nearest distance, both directions, summed."""
-    return mean_squared_distance(ground_truth, predicted) + mean_squared_distance(predicted, ground_truth)
+    return Reference(ground_truth).chamfer(predicted)
 
 
 def mean_squared_distance(a: np.ndarray, b: np.ndarray) -> float:

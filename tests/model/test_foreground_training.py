@@ -222,6 +222,16 @@ def runs(tiny_data, tmp_path_factory):
     return root
 
 
+@pytest.fixture(scope="module")
+def float32_bundle(runs, tmp_path_factory):
+    """(folder, model.json) of the bundle of ``runs``' image model with its foreground network in
+    float32: exported once for the tests that only read it."""
+    from export.exporter import export
+
+    out = tmp_path_factory.mktemp("fg_bundle") / "b"
+    return out, export(runs / "img", out, foreground=runs / "fg", foreground_precision="float32")
+
+
 def test_an_image_model_retrained_for_photos_starts_from_its_teacher(tiny_data, runs, tmp_path):
     kw = dict(IMAGE, iters=4, teacher=str(runs / "img"), photo_share=0.5, foreground_ratio=0.85)
     student = Trainer(config(tiny_data, tmp_path / "s", **kw))
@@ -250,19 +260,20 @@ def teacher_spec():
     return ImageSpec(size=32)
 
 
-def test_the_bundle_carries_the_foreground_network_and_the_photo_evaluation_uses_it(tiny_data, runs, tmp_path):
+def test_the_bundle_carries_the_foreground_network_and_the_photo_evaluation_uses_it(tiny_data, runs, float32_bundle,
+                                                                                   tmp_path):
     from export.bundle import BundleError, load_bundle
     from export.exporter import export
     from export.runtime import Runtime
     from model.evaluate import evaluate
     from model.checkpoint import load_model
 
-    meta = export(runs / "img", tmp_path / "b", foreground=runs / "fg", foreground_precision="float32")
+    bundle, meta = float32_bundle
     assert "foreground" in meta["graphs"] and meta["input"]["foreground"]["size"] == 32
     check = meta["export"]["self_check"]
     assert check["foreground_logit_max_abs_diff"] < 1e-4 and check["foreground_pixel_agreement"] == 1.0
     assert meta["export"]["quantized"] is False and meta["export"]["foreground_precision"] == "float32"
-    rt = Runtime(load_bundle(tmp_path / "b"), threads=1)
+    rt = Runtime(load_bundle(bundle), threads=1)
     rgb = np.random.default_rng(0).integers(0, 256, (40, 70, 3), dtype=np.uint8)
     p = rt.segment(rgb)
     assert p.shape == (32, 32) and 0 <= p.min() and p.max() <= 1           # the network's grid
@@ -275,7 +286,7 @@ def test_the_bundle_carries_the_foreground_network_and_the_photo_evaluation_uses
     with pytest.raises(BundleError, match="precision"):
         export(runs / "img", tmp_path / "c", foreground=runs / "fg", foreground_precision="int4")
     assert not (tmp_path / "c").exists()
-    res = evaluate(str(runs / "img"), str(tiny_data), "train", resolution=16, limit=3, bundle=str(tmp_path / "b"),
+    res = evaluate(str(runs / "img"), str(tiny_data), "train", resolution=16, limit=3, bundle=str(bundle),
                    photos=True)
     assert res["input"]["foreground_network"] and sum(res["input"]["mask_sources"].values()) == 3
     for r in res["per_shape"]:
@@ -287,7 +298,8 @@ def test_the_bundle_carries_the_foreground_network_and_the_photo_evaluation_uses
     json.dumps(res)
 
 
-def test_the_default_bundle_stores_the_foreground_network_in_int8_and_it_masks_as_torch_does(runs, tmp_path):
+def test_the_default_bundle_stores_the_foreground_network_in_int8_and_it_masks_as_torch_does(runs, float32_bundle,
+                                                                                          tmp_path):
     """Static int8 quantisation (QDQ): the convolutions' weights are int8 in the file, the file is
     smaller, and the masks agree with torch's on photos it was not calibrated with."""
     import onnx
@@ -306,8 +318,8 @@ def test_the_default_bundle_stores_the_foreground_network_in_int8_and_it_masks_a
     assert {"QuantizeLinear", "DequantizeLinear", "Conv"} <= ops
     int8 = [t for t in graph.graph.initializer if t.data_type == onnx.TensorProto.INT8 and len(t.dims) == 4]
     assert len(int8) == sum(n.op_type == "Conv" for n in graph.graph.node) > 0     # every convolution's weights
-    float32 = export(runs / "img", tmp_path / "f", foreground=runs / "fg", foreground_precision="float32")
-    assert bundle.file("foreground").stat().st_size < 0.6 * load_bundle(tmp_path / "f").file("foreground").stat().st_size
+    folder, float32 = float32_bundle
+    assert bundle.file("foreground").stat().st_size < 0.6 * load_bundle(folder).file("foreground").stat().st_size
     _, check = foreground_photos(32)
     rt = Runtime(bundle, threads=1)
     ours = np.concatenate([rt.run("foreground", {"image": x})[0] for x in check])
@@ -334,7 +346,8 @@ def test_photo_inputs_are_framed_objects_for_any_draw():
         assert blue[12:20, 14:18].mean() > 0.5          # the object is in the middle of the input
 
 
-def test_the_guided_filter_is_calibrated_on_validation_recorded_and_exported(tiny_data, runs, tmp_path, capsys):
+def test_the_guided_filter_is_calibrated_on_validation_recorded_and_exported(tiny_data, runs, float32_bundle, tmp_path,
+                                                                            capsys):
     """``--mask-guide`` scores every candidate on the split's photo-like views, keeps the best, writes
     mask_guide.json (a run) or model.json (a checkpoint folder); evaluation and export take it."""
     import shutil
@@ -360,7 +373,6 @@ def test_the_guided_filter_is_calibrated_on_validation_recorded_and_exported(tin
     meta = export(runs / "img", tmp_path / "b", foreground=run, foreground_precision="float32")
     spec = load_bundle(tmp_path / "b").mask_spec()
     assert (spec.guide, spec.guide_eps) == (report["radius"], report["eps"])
-    assert meta["version"] != export(runs / "img", tmp_path / "c", foreground=runs / "fg",
-                                     foreground_precision="float32")["version"]   # what is served differs
+    assert meta["version"] != float32_bundle[1]["version"]   # the same networks unguided: what is served differs
     assert main([str(runs / "img"), "--data", str(tiny_data), "--mask-guide"]) == 2
     assert "foreground network" in capsys.readouterr().err

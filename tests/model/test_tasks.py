@@ -93,9 +93,8 @@ def test_completion_training_resumes_and_evaluates_against_the_input_floor(scan_
     assert kept["keep_scan"] is True and plain["keep_scan"] is False
     assert all(a["chamfer_x1e3"] != b["chamfer_x1e3"] for a, b in zip(kept["per_shape"], plain["per_shape"]))
 
-    # the keep_scan bias: chosen on a split, recorded with the run, used by evaluation, carried by export
-    from export.bundle import load_bundle
-    from export.exporter import export
+    # the keep_scan bias: chosen on a split, recorded with the run, used by evaluation (carried by
+    # export: the guided test below, which exports anyway)
     from model.calibrate import keep_scan_candidates, main as calibrate_main
 
     assert calibrate_main([str(tmp_path / "a"), "--data", str(scan_data), "--split", "train", "--keep-scan",
@@ -112,8 +111,6 @@ def test_completion_training_resumes_and_evaluates_against_the_input_floor(scan_
     assert evaluate_main([str(tmp_path / "a"), "--data", str(scan_data), "--split", "train", "--limit", "4",
                           "--resolution", "32", "--keep-scan", "--out", str(again)]) == 0
     assert json.loads(again.read_text())["keep_scan_empty_bias"] == chosen
-    export(tmp_path / "a", tmp_path / "completion-bundle")
-    assert load_bundle(tmp_path / "completion-bundle").keep_scan_bias == {int(d): b for d, b in chosen.items()}
     assert [r["input_chamfer_x1e3"] for r in kept["per_shape"]] == [r["input_chamfer_x1e3"] for r in plain["per_shape"]]
 
 
@@ -389,10 +386,15 @@ def test_guided_completion_reads_the_scans_features_trains_resumes_and_exports(s
     assert fused.size == alone.size == (4 * TILE, 18 + 2 * TILE)
     column = (2 * TILE, 18, 3 * TILE, 18 + 2 * TILE)         # the output
     assert np.abs(np.asarray(fused.crop(column), float) - np.asarray(alone.crop(column), float)).mean() > 1
+    # the keep_scan bias chosen for the run is carried by its bundle
+    assert calibrate_main([str(tmp_path / "cal"), "--data", str(scan_data), "--split", "train", "--keep-scan",
+                           "--limit", "2", "--resolution", "32"]) == 0
+    chosen = json.loads((tmp_path / "cal" / "keep_scan.json").read_text())["empty_bias"]
     meta = export(tmp_path / "cal", tmp_path / "bundle")
     assert meta["format"] == 2 and meta["octree"]["guided"] is True
     assert meta["export"]["self_check"]["label_agreement"] >= 0.999
-    assert load_bundle(tmp_path / "bundle").octree.guided
+    bundle = load_bundle(tmp_path / "bundle")
+    assert bundle.octree.guided and bundle.keep_scan_bias == {int(d): b for d, b in chosen.items()}
     # served through onnxruntime (encoder features, key lookup, skip inputs): torch's figures
     for name, extra in (("torch", []), ("served", ["--bundle", str(tmp_path / "bundle")])):
         assert evaluate_main([str(tmp_path / "cal"), "--data", str(scan_data), "--split", "train", "--limit", "4",
