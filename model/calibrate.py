@@ -38,7 +38,7 @@ from .octree import SPLIT
 from .checkpoint import load_model
 from .evaluate import MISSING_GAP, decoded_points
 from .results import category_means
-from .octree.metrics import chamfer_distance, missing_distance
+from .octree.metrics import Reference, mean_squared_distance, missing_part
 from .results_table import paired_difference
 from .train.completion import truth_view
 from .train.config import KEEP_SCAN_FILE, MASK_GUIDE_FILE, load_checkpoint, write_weights
@@ -167,18 +167,21 @@ def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int
         with torch.no_grad():
             latent, guide = encode_with_guide(model, cfg, dataset, idx)
         scans = [dataset.scan(i) for i in idx]
+        truths = {i: Reference(dataset.samples[i].points) for i in idx}      # measured against every candidate
+        parts = {i: missing_part(dataset.samples[i].points, dataset.samples[i].partial, MISSING_GAP) for i in idx}
         for i in idx:
             sample = dataset.samples[i]
-            floor.setdefault(sample.category, []).append(chamfer_distance(sample.points, sample.partial) * 1e3)
+            floor.setdefault(sample.category, []).append(truths[i].chamfer(sample.partial) * 1e3)
         for c, bias in enumerate(candidates):
             for i, (pts, _) in zip(idx, decoded_points(model, latent, None, resolution, seed, scans=scans, empty_bias=bias,
                                                    guide=guide)):
                 sample = dataset.samples[i]
                 pts = truth_view(sample, pts)
-                missing = missing_distance(sample.points, sample.partial, pts, MISSING_GAP) if len(pts) else None
+                found = len(pts) > 0
                 rows[c].append({"category": sample.category, "shape_id": sample.shape_id,
-                                "chamfer_x1e3": chamfer_distance(sample.points, pts) * 1e3 if len(pts) else None,
-                                "missing_x1e3": missing * 1e3 if missing is not None else None})
+                                "chamfer_x1e3": truths[i].chamfer(pts) * 1e3 if found else None,
+                                "missing_x1e3": mean_squared_distance(parts[i], pts) * 1e3
+                                if found and len(parts[i]) else None})
     best, tied = choose_keep_scan(rows, draws)
     chamfer = [category_mean(r, "chamfer_x1e3") for r in rows]
     missing = [category_mean(r, "missing_x1e3") for r in rows]
