@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 import hashlib
+import io
 import json
 import math
+import os
+import tempfile
+import zipfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
+
+import numpy as np
 
 def _read_umask() -> int:
     """The process umask (read by setting and restoring it: there is no getter)."""
@@ -51,6 +55,28 @@ def write_atomic(path: str | Path, data: bytes, fsync: bool = False) -> None:
     with atomic_path(path, fsync) as tmp:
         with open(tmp, "wb") as fh:
             fh.write(data)
+
+
+NPZ_LEVEL = 1
+"""Deflate level of the datasets' and caches' .npz files: a depth-7 record (about 6 MB of arrays)
+compresses in 0.05 s to 1.19 MB at level 1, in 0.14 s to 1.10 MB at NumPy's (zlib's default, 6),
+which was 30% of the record's build."""
+
+NPZ_TIME = (1980, 1, 1, 0, 0, 0)
+"""Every member's timestamp (the zip format's earliest): an .npz's bytes depend on its arrays alone."""
+
+
+def npz_bytes(arrays: dict[str, np.ndarray], level: int = NPZ_LEVEL) -> bytes:
+    """The bytes of an .npz of ``arrays`` (what ``np.load`` reads; one ``<name>.npy`` member per
+    array, in order, no pickled objects), deflated at ``level``; the same arrays give the same bytes."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        for name, value in arrays.items():
+            member = io.BytesIO()
+            np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
+            z.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=NPZ_TIME), member.getvalue(),
+                       compress_type=zipfile.ZIP_DEFLATED, compresslevel=level)
+    return buf.getvalue()
 
 
 def finite(obj):

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ..files import TEMP_PREFIX, write_atomic
+from ..files import TEMP_PREFIX, npz_bytes, write_atomic
 from ..octree import build_octree
 from ..octree.serialize import octree_from_arrays, octree_to_arrays
 from .layouts import iter_mesh_folder, iter_modelnet40, iter_r2n2, iter_shapenet, load_mesh, y_up
@@ -184,10 +184,9 @@ def _read_r2n2_views(task: ShapeTask) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> str:
-    """Write a compressed .npz beside ``path`` under a temporary name, then rename; returns sha256."""
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
-    data = buf.getvalue()
+    """Write a compressed .npz (:func:`model.files.npz_bytes`) beside ``path`` under a temporary
+    name, then rename; returns sha256."""
+    data = npz_bytes(arrays)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(path, data, fsync=True)
     return hashlib.sha256(data).hexdigest()

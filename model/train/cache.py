@@ -8,7 +8,6 @@ classification's rotated octrees) cache them here so reruns and resumed runs sta
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 from pathlib import Path
 from typing import Any, Callable, TypeVar
@@ -16,7 +15,7 @@ from typing import Any, Callable, TypeVar
 import numpy as np
 
 from ..data.dataset import ShapeRecord, load_record
-from ..files import write_atomic
+from ..files import npz_bytes, write_atomic
 from .data import READ_ERRORS, process_map
 
 T = TypeVar("T")
@@ -35,10 +34,8 @@ def cached_arrays(path: Path, sha: str, build: Callable[[], dict[str, np.ndarray
     if cached is not None:
         return cached
     arrays = {"record_sha256": np.array(sha), **build()}
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_atomic(path, buf.getvalue())
+    write_atomic(path, npz_bytes(arrays))
     return arrays
 
 

@@ -38,3 +38,33 @@ def test_the_mode_follows_the_umask(tmp_path, umask, mode):
             f"write_atomic({str(target)!r}, b'x')")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
     assert target.stat().st_mode & 0o777 == mode
+
+
+def test_npz_bytes_round_trip_and_depend_on_the_arrays_alone(monkeypatch):
+    import io
+    import time
+    import zipfile
+
+    import numpy as np
+
+    from model.files import npz_bytes
+
+    arrays = {"points": np.random.default_rng(0).random((500, 3)).astype(np.float32),
+              "plane": np.array([[np.nan, 1.0]]), "label": np.arange(7, dtype=np.int8),
+              "category": np.array("chair"), "version": np.array(1), "empty": np.zeros((0, 3))}
+    data = npz_bytes(arrays)
+    with np.load(io.BytesIO(data)) as f:
+        assert f.files == list(arrays)
+        for k, v in arrays.items():
+            assert f[k].dtype == v.dtype and f[k].shape == v.shape
+            assert np.array_equal(f[k], v, equal_nan=v.dtype.kind == "f")
+    assert all(i.compress_type == zipfile.ZIP_DEFLATED for i in zipfile.ZipFile(io.BytesIO(data)).infolist())
+    # written a day later, the same bytes (np.savez stamps each member with the time of writing)
+    later = time.time() + 86_400
+    monkeypatch.setattr(time, "time", lambda: later)
+    assert npz_bytes(arrays) == data
+    assert npz_bytes({**arrays, "label": arrays["label"] + 1}) != data
+    # a stronger level: smaller here, the same arrays
+    assert len(npz_bytes(arrays, level=9)) < len(data)
+    with pytest.raises(ValueError, match="pickle"):
+        npz_bytes({"objects": np.array([{"a": 1}], dtype=object)})
