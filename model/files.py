@@ -15,6 +15,7 @@ from typing import Iterator
 
 import numpy as np
 
+
 def _read_umask() -> int:
     """The process umask (read by setting and restoring it: there is no getter)."""
     mask = os.umask(0o022)
