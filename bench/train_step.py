@@ -29,25 +29,33 @@ TASKS = {"autoencoder": ("aocnn", "ocnn-patch"), "classify": ("aocnn", "ocnn")}
 """--task -> (Adaptive O-CNN arch, O-CNN arch) compared."""
 
 
+def training_batch(adaptive: bool, depth: int, batch: int):
+    """The octree tensors of ``batch`` procedural shapes, one per category in turn (shape i has
+    seed i), virtually scanned: adaptive or full octrees of ``depth``, merged into one batch."""
+    from model.data import generate, scan
+    from model.data.shapes import CATEGORIES
+    from model.nn.tensors import OctreeTensors
+    from model.octree import build_octree
+    from model.octree.batch import merge_octrees
+
+    trees = []
+    for i in range(batch):
+        pts, nrm = scan(generate(CATEGORIES[i % len(CATEGORIES)], i), resolution=256)
+        trees.append(build_octree((pts, nrm), depth, adaptive=adaptive))
+    return OctreeTensors.from_octree(merge_octrees(trees))
+
+
 def measure(task: str, arch: str, depth: int, batch: int, steps: int, threads: int | None) -> dict:
     """Runs in a child process: median step time and peak memory of one configuration."""
     import torch
 
-    from model.data import generate, scan
     from model.networks import ARCHS, CLASSIFIER_ARCHS, Autoencoder, Classifier
-    from model.nn.tensors import OctreeTensors
-    from model.octree import build_octree
-    from model.octree.batch import merge_octrees
     from model.data.shapes import CATEGORIES
 
     if threads:
         torch.set_num_threads(threads)
     kind = ARCHS[arch].octree if task == "autoencoder" else CLASSIFIER_ARCHS[arch][0]
-    trees = []
-    for i in range(batch):
-        pts, nrm = scan(generate(CATEGORIES[i % len(CATEGORIES)], i), resolution=256)
-        trees.append(build_octree((pts, nrm), depth, adaptive=kind == "adaptive"))
-    octree = OctreeTensors.from_octree(merge_octrees(trees))
+    octree = training_batch(kind == "adaptive", depth, batch)
     torch.manual_seed(0)
     if task == "autoencoder":
         model = Autoencoder(arch, depth, base_channels=8)

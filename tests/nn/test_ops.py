@@ -189,21 +189,58 @@ def test_conv_on_adaptive_batched_octree_equals_brute_force(sparse):
     assert torch.allclose(octree_conv(x, alone, w), x @ w[13])
 
 
-def test_chunked_conv_equals_one_gather_with_gradients(sparse):
+def _conv_with_gradients(sparse):
+    """A convolution over depth 5 of the sparse octree, 4 -> 5 float64 channels: a function of
+    octree_conv's keywords to (output, input gradient, weight gradient), and the table's rows."""
     _, t = sparse
     torch.manual_seed(0)
     nb = t.levels[5].neighbors
     x = torch.randn(len(nb), 4, dtype=torch.float64, requires_grad=True)
     w = torch.randn(27, 4, 5, dtype=torch.float64, requires_grad=True)
     grad = torch.randn(len(nb), 5, dtype=torch.float64)
-    results = []
-    for rows in (len(nb), 37, 1):
-        out = octree_conv(x, nb, w, chunk_rows=rows)
-        gx, gw = torch.autograd.grad(out, (x, w), grad)
-        results.append((out, gx, gw))
+
+    def run(**kw):
+        out = octree_conv(x, nb, w, **kw)
+        return (out, *torch.autograd.grad(out, (x, w), grad))
+    return run, len(nb)
+
+
+def test_chunked_conv_equals_one_gather_with_gradients(sparse):
+    run, n = _conv_with_gradients(sparse)
+    results = [run(chunk_rows=rows) for rows in (n, 37, 1)]
     for got in results[1:]:
         for a, b in zip(results[0], got):
             assert torch.allclose(a, b, atol=1e-12)
+
+
+def test_default_chunk_follows_the_device(sparse, monkeypatch):
+    from model.nn import ops
+
+    assert ops.chunk_bytes(torch.device("cpu")) == ops.CPU_CHUNK_BYTES < ops.CHUNK_BYTES
+    assert ops.chunk_bytes(torch.device("cuda")) == ops.CHUNK_BYTES
+    run, n = _conv_with_gradients(sparse)
+    expected = run(chunk_rows=n)
+    chunks = []
+    gather_mm = ops._gather_mm
+    monkeypatch.setattr(ops, "_gather_mm", lambda *a: chunks.append(a[3]) or gather_mm(*a))
+    monkeypatch.setattr(ops, "CPU_CHUNK_BYTES", 37 * 27 * 4 * 8)     # 37 rows of 4 float64 channels
+    got = run()
+    assert chunks[0] == 37 and n > 37
+    for a, b in zip(expected, got):
+        assert torch.allclose(a, b, atol=1e-12)
+
+
+def test_chunks_are_balanced():
+    from model.nn.ops import _chunks
+
+    for n in (1, 7, 8, 100, 2427, 2428, 4860, 10_001):
+        for limit in (1, 8, 37, 2427, 10_000):
+            chunks = _chunks(n, limit)
+            sizes = [c.stop - c.start for c in chunks]
+            assert chunks[0].start == 0 and chunks[-1].stop == n
+            assert all(a.stop == b.start for a, b in zip(chunks, chunks[1:]))
+            assert max(sizes) <= limit and len(sizes) == -(-n // limit)   # as few chunks as the limit allows
+            assert max(sizes) - min(sizes) <= 1                         # no short last chunk
 
 
 def test_max_pool_zeroes_nodes_without_children(sparse):
