@@ -182,16 +182,18 @@ def cube_polygons(normal: np.ndarray, offset: np.ndarray, size: np.ndarray | flo
         cc[:, :8] = _CORNERS[:, c] * size[:, None]
         cc[:, 8:] = (_EDGE_START[:, c] + t * _EDGE_DIR[:, c]) * size[:, None]
         cand.append(cc)
-    # Order the vertices by their angle about their mean, in the plane's (u, v) frame.
+    # Order the vertices by their angle about their mean, in the plane's (u, v) frame; angles of
+    # the valid candidates only (at most 6 of the 20), the others +inf.
     weight = valid.astype(np.float64)
     inv = 1.0 / np.maximum(count, 1)
-    au, av = np.zeros((m, 20)), np.zeros((m, 20))
+    row, col = np.nonzero(valid)
+    au, av = np.zeros(len(row)), np.zeros(len(row))
     for c in range(3):
-        rel = cand[c] - ((weight * cand[c]).sum(1) * inv)[:, None]
-        au += rel * u[:, c, None]
-        av += rel * v[:, c, None]
-    ang = np.arctan2(av, au)
-    ang[~valid] = np.inf
+        rel = cand[c][row, col] - ((weight * cand[c]).sum(1) * inv)[row]
+        au += rel * u[row, c]
+        av += rel * v[row, c]
+    ang = np.full((m, 20), np.inf)
+    ang[row, col] = np.arctan2(av, au)
     order = np.argsort(ang, axis=1, kind="stable")[:, :MAX_POLYGON]      # ties in input order everywhere
     count = np.minimum(count, MAX_POLYGON)
     last = np.take_along_axis(order, np.maximum(count - 1, 0)[:, None], axis=1)
