@@ -25,8 +25,8 @@ CHUNK_BYTES = 16 << 20
 CPU_CHUNK_BYTES = 2 << 20
 """The same on the CPU: a chunk small enough to stay in the cache from its gather to its GEMM.
 Against 16 MiB, an autoencoder training step (batch 8) takes 0.76 of the time at depth 7 and 0.86
-at depth 6 with 1 thread, 0.78 and 0.91 with 2; 1 and 4 MiB are within a few percent of it, 0.5 MiB
-slower (``python -m bench.conv_chunks``, 2 AMD EPYC cores)."""
+at depth 6 with 1 thread, 0.78 and 0.91 with 2; 1 and 4 MiB were within 8% of it either way, 0.5
+MiB 3-20% slower (``python -m bench.conv_chunks``, 2 AMD EPYC cores)."""
 CUSTOM_BACKWARD_ROWS = 4096
 """Convolutions over more octants than this use the hand-written backward when training; below it
 autograd's is as fast (measured: bench.train_step), without the extra Python."""
