@@ -20,16 +20,20 @@ import resource
 import subprocess
 import sys
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 from model.cli import command_parser
+
+if TYPE_CHECKING:
+    from model.nn.tensors import OctreeTensors
 
 
 TASKS = {"autoencoder": ("aocnn", "ocnn-patch"), "classify": ("aocnn", "ocnn")}
 """--task -> (Adaptive O-CNN arch, O-CNN arch) compared."""
 
 
-def training_batch(adaptive: bool, depth: int, batch: int):
+def training_batch(adaptive: bool, depth: int, batch: int) -> OctreeTensors:
     """The octree tensors of ``batch`` procedural shapes, one per category in turn (shape i has
     seed i), virtually scanned: adaptive or full octrees of ``depth``, merged into one batch."""
     from model.data import generate, scan
