@@ -37,6 +37,12 @@ def chunk_bytes(device: torch.device) -> int:
     return CPU_CHUNK_BYTES if device.type == "cpu" else CHUNK_BYTES
 
 
+def _chunk_rows(t: torch.Tensor, channels: int) -> int:
+    """Rows per chunk when neighbour rows of ``channels`` features of ``t``'s dtype are gathered on
+    ``t``'s device: :func:`chunk_bytes` of them, at least one row."""
+    return max(1, chunk_bytes(t.device) // (KERNEL * channels * t.element_size()))
+
+
 def graph_capture() -> bool:
     """True while a graph is being recorded (jit trace, torch.compile / torch.export, ONNX export).
 
@@ -74,7 +80,7 @@ def octree_conv(x: torch.Tensor, neighbors: torch.Tensor, weight: torch.Tensor,
                else weight.dim() == 2 and weight.shape[0] == KERNEL * cin,
                f"weight must be (27, {cin}, Cout) or ({KERNEL * cin}, Cout), got {tuple(weight.shape)}")
         if chunk_rows is None:
-            chunk_rows = max(1, chunk_bytes(x.device) // (KERNEL * cin * x.element_size()))
+            chunk_rows = _chunk_rows(x, cin)
     w = weight.reshape(KERNEL * cin, weight.shape[-1])
     if capture:
         # Row 0 is a zero row, so neighbour j is row j+1 and a missing one (-1) reads row 0.
@@ -142,8 +148,7 @@ class _OctreeConvFunction(torch.autograd.Function):
         gx = gw = None
         if ctx.needs_input_grad[0]:
             wt = w.view(KERNEL, cin, cout).flip(0).transpose(1, 2).reshape(KERNEL * cout, cin)
-            chunk = max(1, chunk_bytes(grad.device) // (KERNEL * cout * grad.element_size()))
-            gx = _gather_mm(grad, neighbors, wt, chunk).to(x_dtype)
+            gx = _gather_mm(grad, neighbors, wt, _chunk_rows(grad, cout)).to(x_dtype)
         if ctx.needs_input_grad[2]:
             padded = torch.cat([x.new_zeros(1, cin), x])
             index = (neighbors + 1).contiguous()
