@@ -155,8 +155,10 @@ def _to_rgba(img: Image.Image) -> np.ndarray:
         peak = float(a.max(initial=0.0))
         if img.mode == "F":
             top = 1.0 if peak <= 1.0 else peak
-        else:
-            top = 65535.0 if img.mode.startswith("I;16") or peak > 255 else 255.0
+        elif img.mode.startswith("I;16") or 255 < peak <= 65535:
+            top = 65535.0
+        else:                            # 8-bit values in 32-bit pixels, or more than 16 bits used
+            top = 255.0 if peak <= 255 else peak
         g = np.clip(a / top * 255.0, 0, 255).round().astype(np.uint8)
         return np.dstack([g, g, g, np.full_like(g, 255)])
     if img.mode == "P" and "transparency" in img.info:
@@ -281,6 +283,11 @@ opaque image is cropped by its border colour, as before the network existed)."""
 
 class NoObjectError(ImageError):
     """The image shows no object to reconstruct (the mask is empty or too small)."""
+
+
+MIN_OBJECT_SIDE = 8
+"""The fewest pixels across (the longer side of its box) an object cut out by its alpha may have: a
+smaller one, enlarged to the encoder's input, is a blur that any shape matches."""
 
 
 @dataclass(frozen=True)
@@ -544,9 +551,16 @@ def frame_object(rgba: np.ndarray, spec: ImageSpec, segment=None, remove_backgro
     rgba = as_rgba(rgba)
     has_alpha = int(rgba[..., 3].min()) < 250
     if has_alpha:
-        if rgba[..., 3].max() == 0:
+        peak = int(rgba[..., 3].max())
+        if peak == 0:
             raise NoObjectError("the image is fully transparent: there is no object to reconstruct")
         box = object_box(rgba, spec.border_tolerance)
+        if box is None:
+            raise NoObjectError(f"no object found in the image: no pixel is even half opaque (its alpha peaks at "
+                                f"{peak} of 255); send the object opaque on a transparent background")
+        if max(box[2] - box[0], box[3] - box[1]) < MIN_OBJECT_SIDE:
+            raise NoObjectError(f"the object is only {box[3] - box[1]}x{box[2] - box[0]} pixels; send an image "
+                                f"where it is at least {MIN_OBJECT_SIDE} pixels across")
         return Framed(prepare_image(rgba, spec, foreground_ratio=foreground_ratio, box=box), "alpha", box,
                       rgba[..., 3].copy(), rgba.shape[:2])
     if remove_background == "false" or segment is None:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from model.preprocess import (ImageError, ImageSpec, MaskSpec, NoObjectError, clean_mask, frame_object,
+from model.preprocess import (MIN_OBJECT_SIDE, ImageError, ImageSpec, MaskSpec, NoObjectError, clean_mask, frame_object,
                               mask_bounds, mask_input, mask_output, object_mask, object_square, resize_mask,
                               to_image)
 
@@ -101,6 +101,21 @@ def test_no_object_and_bad_requests_are_clear_errors():
     transparent = np.zeros((20, 20, 4), np.uint8)
     with pytest.raises(NoObjectError, match="transparent"):
         frame_object(transparent, SPEC, Net())
+    faint = np.full((20, 20, 4), 127, np.uint8)        # a ghost: no pixel even half opaque
+    with pytest.raises(NoObjectError, match="peaks at 127 of 255"):
+        frame_object(faint, SPEC, Net())
+
+
+@pytest.mark.parametrize("height,width", [(2, 2), (7, 3), (1, 7), (8, 1), (5, 8), (30, 2)])
+def test_an_object_cut_out_by_its_alpha_is_at_least_min_object_side_across(height, width):
+    rgba = np.zeros((64, 48, 4), np.uint8)
+    rgba[20:20 + height, 10:10 + width] = 255
+    if max(height, width) < MIN_OBJECT_SIDE:
+        with pytest.raises(NoObjectError, match=f"only {width}x{height} pixels"):
+            frame_object(rgba, SPEC, Net())
+    else:
+        framed = frame_object(rgba, SPEC, Net())
+        assert framed.mask_source == "alpha" and framed.box == (20, 10, 20 + height, 10 + width)
     rgb, _ = photo()
     with pytest.raises(ImageError, match="needs a foreground network"):
         frame_object(rgb, SPEC, None, "true")

@@ -68,6 +68,18 @@ def test_sixteen_bit_png_is_scaled_not_clipped():
     assert abs(int(rgba[0, 0, 0]) - round(40000 / 65535 * 255)) <= 1
 
 
+@pytest.mark.parametrize("peak,top", [(200, 255), (40000, 65535), (200000, 200000)])
+def test_32_bit_integer_pixels_are_scaled_by_the_bits_they_use(peak, top):
+    """8-bit values stay, 16-bit ones are scaled by 65535, wider ones by their peak: never clipped."""
+    g = np.zeros((8, 8), np.int32)
+    g[2:6, 2:6] = peak
+    g[6:, :] = peak // 2
+    rgba = decode_image(encode(Image.fromarray(g), "TIFF"))
+    assert rgba[0, 0, 0] == 0
+    for y, value in ((3, peak), (7, peak // 2)):
+        assert abs(int(rgba[y, 3, 0]) - value / top * 255) <= 0.5
+
+
 def test_palette_transparency_jpeg_webp_and_gif_first_frame():
     p = Image.fromarray(scene()).convert("RGBA").quantize(8)
     frames = [Image.fromarray(scene(box=(0, 0, 10, 10), alpha=False)[..., :3]),

@@ -52,6 +52,8 @@ IMAGES = {
     "text": (b"hello, I am not a picture", 415, "unsupported_image"),
     "truncated png": (photo()[:300], 400, "invalid_image"),
     "fully transparent": (png(np.zeros((20, 20, 4), np.uint8)), 422, "no_object"),
+    "nearly transparent": (png(np.full((20, 20, 4), 1, np.uint8)), 422, "no_object"),
+    "a 2-pixel object": (png(np.pad(np.full((2, 2, 4), 255, np.uint8), ((9, 9), (9, 9), (0, 0)))), 422, "no_object"),
     "decompression bomb": (_gif_bomb(), 413, "image_too_large"),
     "pdf claiming to be png": (b"%PDF-1.4\n" + b"0" * 100, 415, "unsupported_image"),
 }
