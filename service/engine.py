@@ -42,7 +42,8 @@ class StartupError(RuntimeError):
 class Request:
     """One request's input and output choices, as the batch functions take them; ``framed``: a
     photo's framing (mask source, crop box, mask), set by :meth:`Engine.frame_image`; ``mirror``:
-    a scan's mirror plane and its support, set by :meth:`Engine.complete_batch` when ``symmetry``."""
+    a scan's mirror plane and its support, set by :meth:`Engine.complete_batch` when ``symmetry``;
+    ``strays``: the scan's points far from the rest that were dropped, set by it too."""
 
     data: bytes
     fmt: str
@@ -59,6 +60,7 @@ class Request:
     symmetry: bool = False             # completion: a scan supported by its mirror plane is read with its mirror image
     mirror: Mirror | None = None
     up: str = "y"                      # completion: the upload's up axis (turned to y for the network, the output back)
+    strays: int = 0
 
 
 @dataclass
@@ -198,6 +200,7 @@ class Engine:
             with item.timer("decode_input"):
                 loaded = shape_input(item.data, item.filename, o.depth, self.settings.max_points,
                                      self.settings.max_npz_bytes)
+            item.strays = loaded.cloud.strays
             with item.timer("octree_build"):       # the scan's frame, as the model was trained
                 cloud = _upright(loaded.cloud, item.up)      # as the network was trained
                 if item.symmetry:

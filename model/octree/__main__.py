@@ -102,7 +102,7 @@ def run(args: argparse.Namespace) -> dict:
     data = mesh.export(file_type=ext[1:])
     write_atomic(args.out, data.encode() if isinstance(data, str) else data)
     stats = octree_stats(octree, seconds)
-    stats.update(input=args.input, points=len(loaded.cloud), input_kind=loaded.kind,
+    stats.update(input=args.input, points=len(loaded.cloud), points_dropped=loaded.cloud.strays, input_kind=loaded.kind,
                  normals_estimated=loaded.normals_estimated, patches=int(sum(stats["leaves_per_depth"])),
                  surface=m.kind, triangles=int(len(m.faces)), closed=m.closed)
     if args.stats:
@@ -120,7 +120,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.out}: {stats['surface']} surface, {stats['triangles']} triangles"
           f"{' (closed)' if stats['closed'] else ''}, {stats['patches']} patches, {stats['nodes']} nodes, depth {stats['depth']}, "
           f"max patch error {stats['max_patch_error']:.4g} (threshold {stats['threshold']:.4g}), "
-          f"{stats['seconds']:.2f} s")
+          f"{stats['seconds']:.2f} s"
+          + (f"; {stats['points_dropped']} point(s) far from the rest dropped" if stats["points_dropped"] else ""))
     return 0
 
 

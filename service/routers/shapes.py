@@ -133,7 +133,10 @@ async def image_to_shape(image: UploadFile = File(..., description=f"{IMAGE_FORM
 @router.post("/complete", response_class=Response, responses=MESH_RESPONSE,
              summary="A partial, noisy point cloud -> the completed shape, in the input's coordinates")
 async def complete(points: UploadFile = File(..., description="PLY (ascii/binary), XYZ/TXT, NPY, NPZ or OBJ "
-                                              "vertices, with or without normals"),
+                                              "vertices, with or without normals; points far from the rest (at "
+                                              "most a tenth of them, beyond an empty gap to 3 times the rest's "
+                                              "radius: flying pixels, a reflection) are dropped, and "
+                                              "X-Points-Dropped says how many"),
                    format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q, surface: Surface = SURFACE_Q,
                    faces: int | None = FACES_Q, color_by_depth: bool = COLOR_Q, keep_scan: bool = KEEP_SCAN_Q,
                    symmetry: bool = SYMMETRY_Q, up: Up = UP_Q, accept: str | None = Header(None),
@@ -146,7 +149,8 @@ async def complete(points: UploadFile = File(..., description="PLY (ascii/binary
                       keep_scan=keep_scan, symmetry=symmetry, up=up)
     mesh = await _submit(eng, "completion", request)
     return mesh_response(mesh, "completed", timer, b.name, b.version,
-                         {"X-Keep-Scan": "true" if keep_scan else "false", "X-Symmetry": symmetry_header(request.mirror)})
+                         {"X-Keep-Scan": "true" if keep_scan else "false", "X-Symmetry": symmetry_header(request.mirror),
+                          "X-Points-Dropped": str(request.strays)})
 
 
 def symmetry_header(mirror: Mirror | None) -> str:

@@ -162,3 +162,52 @@ def test_cli_keeps_an_existing_output_when_the_input_is_bad(tmp_path):
     assert main([str(bad), "--depth", "5", "--out", str(out)]) == 2
     assert out.read_bytes() == b"previous result"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.xyz", "keep.ply"]
+
+
+def _half_sphere(n: int = 4000) -> tuple[np.ndarray, np.ndarray]:
+    pts, nrm = sphere_points(n)
+    keep = pts[:, 0] > 0                    # a partial scan: the side the scanner saw
+    return pts[keep], nrm[keep]
+
+
+@pytest.mark.parametrize("where,count,dropped", [
+    (1000.0, 50, 50),          # a second thing metres away: dropped
+    (5.0, 1, 1),               # one flying pixel beyond the empty shell
+    (2.0, 1, 0),               # 2 radii out: inside 3 times the rest's radius, kept
+    (1000.0, 400, 0),          # a fifth of the cloud: two objects, not strays; kept
+])
+def test_points_far_from_the_rest_are_dropped_and_counted(where, count, dropped):
+    from model.octree.pointcloud import validate
+
+    pts, nrm = _half_sphere()
+    far = pts[:count] + [where, 0.0, 0.0]
+    cloud = validate(np.r_[pts, far], np.r_[nrm, nrm[:count]])
+    assert cloud.strays == dropped and len(cloud) == len(pts) + count - dropped
+    if dropped:
+        assert np.array_equal(cloud.points, pts) and np.allclose(cloud.normals, nrm)
+    assert validate(pts, None).strays == 0
+
+
+def test_a_clean_cloud_loses_no_point_and_a_cluster_with_strays_is_no_line():
+    from model.octree.pointcloud import validate
+
+    pts, nrm = _half_sphere()
+    thin = np.c_[np.linspace(0, 1, 500), np.zeros(500), np.zeros(500)]
+    assert validate(np.r_[pts * 0.01, pts + [30, 0, 0]], None).strays == 0     # two halves: both kept
+    with pytest.raises(OctreeInputError, match="identical within rounding"):
+        validate(np.r_[np.ones((200, 3)), [[50.0, 0, 0]]], None)               # one spot and a stray
+    with pytest.raises(OctreeInputError, match="on a line"):
+        validate(np.r_[thin, [[0, 300.0, 0]]], None)
+
+
+def test_cli_says_how_many_points_far_from_the_rest_it_dropped(tmp_path, capsys):
+    pts, nrm = _half_sphere()
+    src = tmp_path / "scan.npy"
+    np.save(src, np.c_[np.r_[pts, pts[:20] + 500.0], np.r_[nrm, nrm[:20]]])
+    stats = tmp_path / "s.json"
+    assert main([str(src), "--depth", "5", "--out", str(tmp_path / "o.ply"), "--stats", str(stats)]) == 0
+    assert "20 point(s) far from the rest dropped" in capsys.readouterr().out
+    s = json.loads(stats.read_text())
+    assert s["points_dropped"] == 20 and s["points"] == len(pts)
+    out = trimesh.load(tmp_path / "o.ply", force="mesh")
+    assert out.bounds[1].max() < 1.2               # the half sphere's own frame, not one 500 units wide

@@ -135,6 +135,22 @@ def test_complete_accepts_every_point_format_and_answers_in_the_input_frame(clie
         assert np.abs(mesh.vertices.mean(0) - centre).max() < 0.5 * extent
 
 
+def test_complete_drops_points_far_from_the_scan_and_says_how_many(client, clouds):
+    pts = partial_cloud(clouds)[::4]
+    lo, hi = pts.min(0), pts.max(0)
+    extent = (hi - lo).max()
+    stray = pts[:5] + [1000 * extent, 0, 0]                       # a reflection far behind the object
+    meshes = {}
+    for name, cloud in (("clean", pts), ("strays", np.r_[pts, stray])):
+        r = client.post("/v1/complete?format=ply", files={"points": ("scan.npy", _npy(cloud))})
+        assert r.status_code == 200, r.text
+        assert r.headers["x-points-dropped"] == ("5" if name == "strays" else "0")
+        meshes[name] = trimesh.load(io.BytesIO(r.content), file_type="ply", process=False)
+    # framed by the scan alone: the same output as without the strays, near the scan, not a speck
+    assert np.allclose(meshes["strays"].vertices, meshes["clean"].vertices)
+    assert np.all(np.abs(meshes["strays"].vertices - (lo + hi) / 2) <= extent)
+
+
 def test_complete_and_classify_turn_a_z_up_upload_upright_and_the_completed_shape_back(client, clouds):
     from model.octree.geometry import to_y_up
 
