@@ -31,12 +31,12 @@ from .files import json_text, write_atomic
 from .octree import scan_frame, scan_octree, validate
 from .octree.batch import merge_octrees
 from .octree.metrics import chamfer_distance, mean_squared_distance, missing_part
-from .octree.pointcloud import normalization_of
+from .octree.pointcloud import MIN_SCAN_POINTS, normalization_of
 from .results_table import paired_difference
 from .cli import command_parser
 
 
-MIN_POINTS = 100
+MIN_POINTS = MIN_SCAN_POINTS
 """Scans with fewer points are not completed (the service's own minimum); such shapes are left
 out of every row of that setting and counted."""
 

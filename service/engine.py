@@ -19,6 +19,7 @@ from model.preprocess import Framed, MaskSpec, upload_mask
 from model.surface import DEFAULT_SURFACE, SURFACES, surface_mesh
 from model.octree import Octree, PointCloud, build_octree, scan_octree
 from model.octree.geometry import to_y_up, up_rotations
+from model.octree.pointcloud import MIN_SCAN_POINTS
 from model.octree.batch import merge_octrees, split_octree
 from model.octree.fuse import keep_scan
 from model.octree.symmetry import Mirror, symmetrize
@@ -201,6 +202,10 @@ class Engine:
                 loaded = shape_input(item.data, item.filename, o.depth, self.settings.max_points,
                                      self.settings.max_npz_bytes)
             item.strays = loaded.cloud.strays
+            if len(loaded.cloud) < MIN_SCAN_POINTS:
+                strays = f" once {item.strays} far from the rest are dropped" if item.strays else ""
+                raise APIError(400, "too_few_points", f"the scan has {len(loaded.cloud)} points{strays}; completion "
+                               f"needs at least {MIN_SCAN_POINTS}", "send the scanner's whole point cloud")
             with item.timer("octree_build"):       # the scan's frame, as the model was trained
                 cloud = _upright(loaded.cloud, item.up)      # as the network was trained
                 if item.symmetry:

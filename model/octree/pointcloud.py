@@ -124,6 +124,11 @@ def normalization_of(points: np.ndarray) -> Normalization:
     return Normalization(center=(lo + hi) / 2.0, scale=float((hi - lo).max() / CUBE_FILL))
 
 
+MIN_SCAN_POINTS = 100
+"""A partial scan with fewer points (after its strays are dropped) is not completed: a handful of
+points says nothing of the shape, and the service answers 400 rather than a guess."""
+
+
 SCAN_FRAME_MARGIN = 1.1
 """A partial scan's frame is its bounding cube enlarged by this factor: in 99.8% of the dataset's
 partial scans the complete shape lies inside it (docs/RESULTS.md, shape completion)."""
