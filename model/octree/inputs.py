@@ -240,4 +240,4 @@ def _sample_mesh(mesh, path: str, depth: int, n_points: int | None, seed: int) -
     sub = trimesh.Trimesh(vertices=v, faces=np.asarray(mesh.faces)[faces], process=False)
     pts, fid = trimesh.sample.sample_surface(sub, n_points, seed=seed)
     normals = sub.face_normals[fid]
-    return LoadedInput(validate(pts, normals), "mesh", float(np.sqrt(total / n_points)), False)
+    return LoadedInput(validate(pts, normals, drop_strays=False), "mesh", float(np.sqrt(total / n_points)), False)

@@ -66,9 +66,10 @@ line (or a point): thinner than a finest voxel at any depth the build allows, an
 leaves of points on a line (6 significant digits put them ~1e-6 off it).  A plane is legitimate."""
 
 
-def validate(points: np.ndarray, normals: np.ndarray | None) -> PointCloud:
+def validate(points: np.ndarray, normals: np.ndarray | None, drop_strays: bool = True) -> PointCloud:
     """Check shapes and values, normalise normals, drop the points far from the rest
-    (:func:`stray_points`, counted in ``strays``); raise :class:`OctreeInputError` if unusable:
+    (:func:`stray_points`, counted in ``strays``; not with ``drop_strays=False``, for samples of a
+    mesh, whose every point is its geometry); raise :class:`OctreeInputError` if unusable:
     NaN or infinite values, fewer than 3 points, or points that all lie on a line or at one spot
     within rounding (decided on the singular values of the centred cloud, :data:`LINE_TOLERANCE`)."""
     pts = np.asarray(points, dtype=np.float64)
@@ -84,7 +85,7 @@ def validate(points: np.ndarray, normals: np.ndarray | None) -> PointCloud:
             f"{int(np.flatnonzero(bad)[0])}); remove them")
     if len(pts) < 3:
         raise OctreeInputError(f"need at least 3 points to fit a plane, got {len(pts)}")
-    stray = stray_points(pts)
+    stray = stray_points(pts) if drop_strays else np.zeros(len(pts), bool)
     strays = int(stray.sum())
     if strays:
         pts = pts[~stray]

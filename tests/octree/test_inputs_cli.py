@@ -211,3 +211,15 @@ def test_cli_says_how_many_points_far_from_the_rest_it_dropped(tmp_path, capsys)
     assert s["points_dropped"] == 20 and s["points"] == len(pts)
     out = trimesh.load(tmp_path / "o.ply", force="mesh")
     assert out.bounds[1].max() < 1.2               # the half sphere's own frame, not one 500 units wide
+
+
+def test_a_mesh_keeps_a_small_part_far_from_the_rest(tmp_path):
+    """A mesh's samples are its geometry: a small box far from a large one is kept, not dropped."""
+    big = trimesh.creation.box((1.0, 1.0, 1.0))
+    small = trimesh.creation.box((0.05, 0.05, 0.05))
+    small.apply_translation((20.0, 0.0, 0.0))
+    path = tmp_path / "two.ply"
+    trimesh.util.concatenate([big, small]).export(path)
+    loaded = load_input(str(path), 5)
+    assert loaded.kind == "mesh" and loaded.cloud.strays == 0
+    assert loaded.cloud.points[:, 0].max() > 19.9
