@@ -263,10 +263,11 @@ class Engine:
                     out[i] = exc
         return out
 
-    def classify(self, data: bytes, filename: str | None, vote: bool, timer: StageTimer, up: str = "y") -> np.ndarray:
+    def classify(self, data: bytes, filename: str | None, vote: bool, timer: StageTimer,
+                 up: str = "y") -> tuple[np.ndarray, int]:
         """Class probabilities (R, C) of a shape at R rotations about the bundle's up axis: 12 with
         ``vote`` (the paper's test-time vote, 12x the work), else 1; the shape first turned from its
-        up axis ``up`` to the model's."""
+        up axis ``up`` to the model's; and how many of its points far from the rest were dropped."""
         served = self.model("classify")
         b = served.bundle
         o = b.octree
@@ -283,16 +284,18 @@ class Engine:
                                   **({"threshold": o.threshold} if o.threshold else {}))
                      for r in rotations]
         with timer("encoder"):
-            return served.runtime.classify(served.runtime.encode_octree(merge_octrees(trees)))
+            return served.runtime.classify(served.runtime.encode_octree(merge_octrees(trees))), loaded.cloud.strays
 
     def octree(self, data: bytes, filename: str | None, depth: int, threshold: float | None, full: bool, fmt: str,
-               color: bool, timer: StageTimer, surface: str = DEFAULT_SURFACE, faces: int | None = None) -> MeshFile:
+               color: bool, timer: StageTimer, surface: str = DEFAULT_SURFACE,
+               faces: int | None = None) -> tuple[MeshFile, int]:
+        """The mesh of a shape's octree, and how many of its points far from the rest were dropped."""
         with timer("decode_input"):
             loaded = shape_input(data, filename, depth, self.settings.max_points, self.settings.max_npz_bytes, "shape")
         with timer("octree_build"):
             tree = build_octree(loaded.cloud, depth, adaptive=not full, neighbors=False,
                                 sample_spacing=loaded.sample_spacing, **({"threshold": threshold} if threshold else {}))
-        return _mesh(tree, fmt, color, timer, surface, faces)
+        return _mesh(tree, fmt, color, timer, surface, faces), loaded.cloud.strays
 
 
 def _mesh(octree, fmt: str, color: bool, timer: StageTimer, surface: str, faces: int | None = None,

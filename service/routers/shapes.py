@@ -164,7 +164,9 @@ def symmetry_header(mirror: Mirror | None) -> str:
 
 @router.post("/octree", response_class=Response, responses=MESH_RESPONSE,
              summary="A mesh or point cloud -> the surface of its patch-guided adaptive octree (no learning)")
-async def octree(shape: UploadFile = File(..., description="a mesh (OBJ, OFF, STL, PLY, GLB, glTF) or a point cloud"),
+async def octree(shape: UploadFile = File(..., description="a mesh (OBJ, OFF, STL, PLY, GLB, glTF) or a point "
+                                           "cloud; a cloud's points far from the rest are dropped (X-Points-Dropped "
+                                           "says how many; see /v1/complete)"),
                  depth: int = Query(6, ge=2, le=MAX_BUILD_DEPTH, description="octree depth (at most "
                                     "AOCNN_MAX_OCTREE_DEPTH, 8 by default)"),
                  threshold: float | None = Query(None, gt=0, le=64, description="split threshold in finest voxels "
@@ -180,10 +182,10 @@ async def octree(shape: UploadFile = File(..., description="a mesh (OBJ, OFF, ST
     data, filename = await _read(shape)
     fmt = choose_format(format, accept)
     timer = StageTimer(eng.metrics)
-    mesh = await eng.limiter.run(
+    mesh, strays = await eng.limiter.run(
         lambda: eng.octree(data, filename, depth, threshold, full, fmt, color_by_depth, timer, surface, faces),
         eng.settings.timeout_s)
-    return mesh_response(mesh, "octree", timer)
+    return mesh_response(mesh, "octree", timer, extra={"X-Points-Dropped": str(strays)})
 
 
 @router.post("/classify", response_model=ClassifyResponse, responses=ERROR_RESPONSES,
@@ -193,7 +195,9 @@ async def octree(shape: UploadFile = File(..., description="a mesh (OBJ, OFF, ST
                          "`votes` counts the rotations that rank the category first. A voted probability is "
                          "lower than a single view's whenever some rotations disagree; the vote's answer is "
                          "the more accurate one (the model card's test figures).")
-async def classify(response: Response, shape: UploadFile = File(..., description="a mesh or point cloud"),
+async def classify(response: Response, shape: UploadFile = File(..., description="a mesh or point cloud; a cloud's "
+                                                                   "points far from the rest are dropped "
+                                                                   "(X-Points-Dropped says how many)"),
                    top_k: int = Query(5, ge=1, le=50, description="how many categories to return"),
                    vote: bool = Query(False, description="average over 12 rotations about the up axis "
                                       "(the paper's test-time vote; 12x the work)"),
@@ -202,8 +206,9 @@ async def classify(response: Response, shape: UploadFile = File(..., description
     b = eng.model("classify").bundle
     data, filename = await _read(shape)
     timer = StageTimer(eng.metrics)
-    probs = await eng.limiter.run(lambda: eng.classify(data, filename, vote, timer, up), eng.settings.timeout_s)
+    probs, strays = await eng.limiter.run(lambda: eng.classify(data, filename, vote, timer, up), eng.settings.timeout_s)
     response.headers["Server-Timing"] = timer.header()
+    response.headers["X-Points-Dropped"] = str(strays)
     mean, votes = probs.mean(0), np.bincount(probs.argmax(1), minlength=probs.shape[1])
     order = np.argsort(-mean, kind="stable")[:top_k]
     return ClassifyResponse(model=b.name, version=b.version, rotations=len(probs),

@@ -149,6 +149,12 @@ def test_complete_drops_points_far_from_the_scan_and_says_how_many(client, cloud
     # framed by the scan alone: the same output as without the strays, near the scan, not a speck
     assert np.allclose(meshes["strays"].vertices, meshes["clean"].vertices)
     assert np.all(np.abs(meshes["strays"].vertices - (lo + hi) / 2) <= extent)
+    for endpoint in ("octree", "classify"):                       # the same rule, the same report
+        answers = [client.post(f"/v1/{endpoint}", files={"shape": ("scan.npy", _npy(cloud))})
+                   for cloud in (pts, np.r_[pts, stray])]
+        assert [r.status_code for r in answers] == [200, 200]
+        assert [r.headers["x-points-dropped"] for r in answers] == ["0", "5"]
+        assert answers[0].content == answers[1].content
 
 
 def test_complete_and_classify_turn_a_z_up_upload_upright_and_the_completed_shape_back(client, clouds):
