@@ -164,6 +164,7 @@ function showHeaders(response) {
   $('s-surface').textContent = `${h('X-Surface')}${closed === 'true' ? ' (closed)' : closed === 'false' ? ' (open)' : ''}`;
   const box = response.headers.get('X-Crop-Box');
   $('s-mask').textContent = `${h('X-Mask')}${box ? ` (${box})` : ''}`;
+  $('s-dropped').textContent = h('X-Points-Dropped');
   $('s-timing').textContent = h('Server-Timing');
 }
 

@@ -98,6 +98,8 @@ def test_demo_page_in_chromium(browser, server, tmp_path):
         scan = run_example(page, "car_partial_scan.ply")
     assert "up=z" in sent.value.url, sent.value.url
     assert scan["loaded"] or "empty_output" in scan["status"], scan["status"]
+    if scan["loaded"]:
+        assert page.inner_text("#s-dropped") == "0"                      # the example scan has no strays
     page.select_option("#up", "y")
 
     shot = tmp_path / "demo.png"
