@@ -38,6 +38,19 @@ OTHER_SIGNATURES = ((b"%PDF-", "a PDF document"), (b"\x1f\x8b", "a gzip archive"
                     (b"\x80\x05", "a Python pickle"), (b"<!DOCTYPE html", "an HTML page"), (b"<html", "an HTML page"))
 
 
+COLUMN_NAMES = re.compile(r"^\s*[A-Za-z_]\w*(?:[\s,]+[A-Za-z_]\w*){2,}\s*$")
+"""A text point list's header line of column names ("x y z", "X,Y,Z,Nx,Ny,Nz"): at least three
+names, separated by spaces or commas, as spreadsheets and scanner software write them."""
+
+
+def is_column_header(line: str) -> bool:
+    """Whether ``line`` (a text point list's first line, a UTF-8 byte-order mark allowed) names
+    its columns rather than holding numbers (NaN and inf are numbers, not names)."""
+    line = line.lstrip("\ufeff")
+    return bool(COLUMN_NAMES.match(line)) and not all(
+        t.lower() in ("nan", "inf", "infinity") for t in line.replace(",", " ").split())
+
+
 def identify(data: bytes, filename: str | None = None) -> Kind:
     """The kind of file ``data`` is: magic numbers first, then text content, the file name's
     extension only where the bytes cannot tell (OFF/STL/glTF/OBJ).  Text that is none of the mesh
@@ -76,8 +89,13 @@ def identify(data: bytes, filename: str | None = None) -> Kind:
         return Kind("points", "an OBJ file", "obj")
     if any(b < 9 or 13 < b < 32 for b in head):
         return Kind("other", "binary data of no format this project reads", known=False)
+    if head.startswith(b"\xef\xbb\xbf"):                     # a UTF-8 byte-order mark
+        head = head[3:]
     lines = [ln.strip() for ln in head.splitlines() if ln.strip() and not ln.lstrip().startswith((b"#", b"//"))]
-    if not lines or re.match(rb"[-+]?(\d|\.\d|nan|inf)", lines[0], re.I):
+    header = bool(lines) and is_column_header(lines[0].decode("utf-8", "replace"))
+    if header:                                              # column names, then numbers
+        lines = lines[1:]
+    if (not lines and not header) or (lines and re.match(rb"[-+]?(\d|\.\d|nan|inf)", lines[0], re.I)):
         return Kind("points", "an XYZ point list", "xyz", known=False)   # its parser says what is wrong
     return Kind("other", "text in no format this project reads", known=False)
 

@@ -8,12 +8,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..formats import MESH_FORMATS, POINT_FORMATS, identify, not_taken
+from ..formats import MESH_FORMATS, POINT_FORMATS, identify, is_column_header, not_taken
 from .errors import OctreeInputError
 from .pointcloud import CUBE_FILL, PointCloud, validate
 
 MESH_EXTENSIONS = (".obj", ".off", ".stl", ".glb", ".gltf", ".ply")
-POINT_EXTENSIONS = (".xyz", ".txt", ".pts", ".npy", ".npz", ".ply")
+POINT_EXTENSIONS = (".xyz", ".txt", ".pts", ".csv", ".npy", ".npz", ".ply")
 SAMPLES_PER_VOXEL_EDGE = 3
 """Default mesh sampling: spacing of 1/3 finest voxel, so sampling gaps stay well below delta hat."""
 MAX_DEFAULT_POINTS = 2_000_000
@@ -53,7 +53,7 @@ def load_input(path: str, depth: int, n_points: int | None = None, seed: int = 0
         kind = identify(fh.read(HEADER_BYTES))
     if kind.known and kind.loader is None:
         raise OctreeInputError(f"{path}: {not_taken(kind, f'a mesh ({MESH_FORMATS}) or a point cloud ({POINT_FORMATS}) is needed')}")
-    if ext in (".xyz", ".txt", ".pts"):
+    if ext in (".xyz", ".txt", ".pts", ".csv"):
         return _points(_read_text(path), path)
     if ext == ".npy":
         return _points(_read_npy(path), path)
@@ -72,11 +72,13 @@ def _points(arr: np.ndarray, path: str) -> LoadedInput:
 
 def _read_text(path: str) -> np.ndarray:
     try:
-        with open(path, "r", encoding="utf-8") as fh:
-            rows = [ln.replace(",", " ").split() for ln in fh
-                    if ln.strip() and not ln.lstrip().startswith(("#", "//"))]
+        with open(path, "r", encoding="utf-8-sig") as fh:
+            lines = [ln for ln in fh if ln.strip() and not ln.lstrip().startswith(("#", "//"))]
     except UnicodeDecodeError:
         raise OctreeInputError(f"{path}: not a text point cloud (binary content)") from None
+    if lines and is_column_header(lines[0]):                # "x y z" or "X,Y,Z,Nx,Ny,Nz"
+        lines = lines[1:]
+    rows = [ln.replace(",", " ").split() for ln in lines]
     if not rows:
         raise OctreeInputError(f"{path}: no points in the file")
     widths = {len(r) for r in rows}

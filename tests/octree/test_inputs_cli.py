@@ -223,3 +223,33 @@ def test_a_mesh_keeps_a_small_part_far_from_the_rest(tmp_path):
     loaded = load_input(str(path), 5)
     assert loaded.kind == "mesh" and loaded.cloud.strays == 0
     assert loaded.cloud.points[:, 0].max() > 19.9
+
+
+@pytest.mark.parametrize("header,sep,newline,bom", [
+    ("x y z", " ", "\n", False),
+    ("X,Y,Z,Nx,Ny,Nz", ",", "\r\n", True),          # a spreadsheet's CSV: byte-order mark, CRLF
+    ("//X,Y,Z,Nx,Ny,Nz", ",", "\n", False),          # CloudCompare's comment header
+    ("", " ", "\n", True),                           # no header, a byte-order mark
+])
+def test_text_point_lists_with_a_header_line_of_column_names(tmp_path, header, sep, newline, bom):
+    from model.formats import identify
+
+    pts, nrm = sphere_points(300)
+    cols = np.c_[pts, nrm] if header.count(",") == 5 else pts
+    body = newline.join(sep.join(f"{v:.6f}" for v in row) for row in cols)
+    text = (header + newline if header else "") + body + newline
+    data = (b"\xef\xbb\xbf" if bom else b"") + text.encode()
+    assert identify(data).loader == "xyz"
+    for name in ("scan.csv", "scan.txt"):
+        path = tmp_path / name
+        path.write_bytes(data)
+        loaded = load_input(str(path), 5)
+        assert len(loaded.cloud) == 300 and np.allclose(loaded.cloud.points, pts, atol=1e-6)
+        assert loaded.normals_estimated == (cols.shape[1] == 3)
+
+
+@pytest.mark.parametrize("first", ["nan nan nan", "x y", "x y 3"])
+def test_what_is_not_a_header_line_stays_data(first):
+    from model.formats import is_column_header
+
+    assert not is_column_header(first)

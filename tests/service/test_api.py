@@ -117,6 +117,8 @@ def _uploads(pts: np.ndarray, normals: np.ndarray) -> dict[str, bytes]:
         "scan.npy": _npy(pts.astype(np.float32)),
         "scan.npz": _npz(pts, normals),
         "scan.obj": "\n".join(f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in pts).encode(),
+        "scan.csv": b"\xef\xbb\xbfX,Y,Z,Nx,Ny,Nz\r\n"                           # a spreadsheet's export
+                    + "\r\n".join(",".join(f"{v:.6f}" for v in row) for row in np.hstack([pts, normals])).encode(),
     }
 
 
