@@ -50,13 +50,14 @@ def stray_points(points: np.ndarray) -> np.ndarray:
     points inside it.  Such points (a scanner's flying pixels, a reflection, a far wall) would
     otherwise set the cube the cloud is framed in and shrink the object in it to a speck."""
     r = np.linalg.norm(points - np.median(points, axis=0), axis=1)
-    order = np.argsort(r, kind="stable")
-    sorted_r = r[order]
     first = max(int(np.ceil((1 - STRAY_SHARE) * len(r))) - 1, 0)
-    gaps = np.flatnonzero(sorted_r[first + 1:] > STRAY_GAP * sorted_r[first:-1])
+    far = np.argpartition(r, first)[first:]               # only the farthest tenth is sorted
+    far = far[np.argsort(r[far], kind="stable")]
+    d = r[far]
+    gaps = np.flatnonzero(d[1:] > STRAY_GAP * d[:-1])
     stray = np.zeros(len(r), bool)
     if len(gaps):
-        stray[order[first + gaps[0] + 1:]] = True
+        stray[far[gaps[0] + 1:]] = True
     return stray
 
 
