@@ -253,3 +253,29 @@ def test_what_is_not_a_header_line_stays_data(first):
     from model.formats import is_column_header
 
     assert not is_column_header(first)
+
+
+def test_stray_points_match_their_definition_on_random_clouds():
+    """All radii sorted, the first gap of more than STRAY_GAP among the farthest tenth: the rule
+    written plainly, against the function's partial sort."""
+    from model.octree.pointcloud import STRAY_GAP, STRAY_SHARE, stray_points
+
+    rng = np.random.default_rng(7)
+    dropped = 0
+    for trial in range(200):
+        n = int(rng.integers(3, 3000))
+        p = rng.normal(size=(n, 3))
+        k = int(rng.integers(0, n // 8 + 1))
+        p[:k] += rng.normal(size=3) * rng.uniform(0, 50)         # a cluster, near or far
+        r = np.linalg.norm(p - np.median(p, axis=0), axis=1)
+        order = np.argsort(r)
+        first = max(int(np.ceil((1 - STRAY_SHARE) * n)) - 1, 0)
+        want = np.zeros(n, bool)
+        for i in range(first, n - 1):
+            if r[order[i + 1]] > STRAY_GAP * r[order[i]]:
+                want[order[i + 1:]] = True
+                break
+        got = stray_points(p)
+        assert np.array_equal(got, want), trial
+        dropped += int(got.any())
+    assert 20 < dropped < 180                                   # both outcomes were exercised
