@@ -44,9 +44,8 @@ names, separated by spaces or commas, as spreadsheets and scanner software write
 
 
 def is_column_header(line: str) -> bool:
-    """Whether ``line`` (a text point list's first line, a UTF-8 byte-order mark allowed) names
-    its columns rather than holding numbers (NaN and inf are numbers, not names)."""
-    line = line.lstrip("\ufeff")
+    """Whether ``line`` (a text point list's first line, its byte-order mark already removed)
+    names its columns rather than holding numbers (NaN and inf are numbers, not names)."""
     return bool(COLUMN_NAMES.match(line)) and not all(
         t.lower() in ("nan", "inf", "infinity") for t in line.replace(",", " ").split())
 

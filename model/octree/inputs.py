@@ -13,7 +13,8 @@ from .errors import OctreeInputError
 from .pointcloud import CUBE_FILL, PointCloud, validate
 
 MESH_EXTENSIONS = (".obj", ".off", ".stl", ".glb", ".gltf", ".ply")
-POINT_EXTENSIONS = (".xyz", ".txt", ".pts", ".csv", ".npy", ".npz", ".ply")
+TEXT_POINT_EXTENSIONS = (".xyz", ".txt", ".pts", ".csv")
+POINT_EXTENSIONS = TEXT_POINT_EXTENSIONS + (".npy", ".npz", ".ply")
 SAMPLES_PER_VOXEL_EDGE = 3
 """Default mesh sampling: spacing of 1/3 finest voxel, so sampling gaps stay well below delta hat."""
 MAX_DEFAULT_POINTS = 2_000_000
@@ -53,7 +54,7 @@ def load_input(path: str, depth: int, n_points: int | None = None, seed: int = 0
         kind = identify(fh.read(HEADER_BYTES))
     if kind.known and kind.loader is None:
         raise OctreeInputError(f"{path}: {not_taken(kind, f'a mesh ({MESH_FORMATS}) or a point cloud ({POINT_FORMATS}) is needed')}")
-    if ext in (".xyz", ".txt", ".pts", ".csv"):
+    if ext in TEXT_POINT_EXTENSIONS:
         return _points(_read_text(path), path)
     if ext == ".npy":
         return _points(_read_npy(path), path)
