@@ -86,12 +86,14 @@ CHAMFER_TERM = "chamfer_x1e3"
 
 
 def validation_chamfer(run: str | Path, data: str | Path, per_category: int = 4,
-                       resolution: int = 128) -> dict[int, float]:
+                       resolution: int = 128, foreground: str | Path | None = None) -> dict[int, float]:
     """Step -> validation Chamfer distance (x 10^3, category mean) of each step a run kept its
     weights at (``RUN/steps/<step>/``, :meth:`model.train.loop.Trainer.snapshot`), measured on the
     first ``per_category`` shapes of each category of ``data``'s validation split (NaN where every
     output was empty); each figure is kept in ``chamfer.json`` beside its weights and reused while
-    the weights, the settings and the data are the same."""
+    the weights, the settings and the data are the same.  ``foreground`` (image models): measured
+    as served on the shapes' photo-like views instead, their backgrounds removed by this foreground
+    network (``evaluate(photos=True, foreground=...)``), kept in ``chamfer-photos.json``."""
     from .evaluate import evaluate
     from .files import json_text, sha256_file, write_atomic
     from .train.config import STEPS_DIR
@@ -100,10 +102,20 @@ def validation_chamfer(run: str | Path, data: str | Path, per_category: int = 4,
     if not manifest.is_file():
         raise ValueError(f"--chamfer {data}: no manifest.json (a dataset folder of python -m model.data build)")
     settings = {"per_category": per_category, "resolution": resolution, "manifest_sha256": sha256_file(manifest)}
+    name = "chamfer.json"
+    if foreground is not None:
+        weights = Path(foreground) / "model.pt"
+        if not weights.is_file():
+            weights = Path(foreground) / "checkpoint.pt"
+        if not weights.is_file():
+            raise ValueError(f"--photos {foreground}: no model.pt or checkpoint.pt (a foreground network's "
+                             "checkpoint or run folder)")
+        settings["foreground_sha256"] = sha256_file(weights)
+        name = "chamfer-photos.json"
     out: dict[int, float] = {}
     for folder in sorted((Path(run) / STEPS_DIR).glob("*/model.json")):
         folder = folder.parent
-        cached = folder / "chamfer.json"
+        cached = folder / name
         meta = json.loads((folder / "model.json").read_text())
         weights = meta.get("weights_sha256")
         if cached.is_file():
@@ -111,7 +123,8 @@ def validation_chamfer(run: str | Path, data: str | Path, per_category: int = 4,
             if kept.get("settings") == settings and kept.get("weights_sha256") == weights:
                 out[int(kept["step"])] = np.nan if kept[CHAMFER_TERM] is None else float(kept[CHAMFER_TERM])
                 continue
-        results = evaluate(str(folder), str(data), "val", resolution, per_category=per_category)
+        results = evaluate(str(folder), str(data), "val", resolution, per_category=per_category,
+                           photos=foreground is not None, foreground=None if foreground is None else str(foreground))
         step = int(meta["steps"])
         value = results["chamfer_x1e3_category_mean"]        # None: every output was empty
         write_atomic(cached, json_text({"step": step, CHAMFER_TERM: value, "shapes": results["shapes"],

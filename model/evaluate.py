@@ -3,7 +3,7 @@
     python -m model.evaluate RUN --data DIR [--split test] --out results.json [--mesh-dir DIR]
                              [--resolution 128] [--limit N] [--per-category N] [--oracle structure|all] [--icp]
                              [--bundle BUNDLE_DIR]
-                             [--photos [--remove-background auto|true|false]]
+                             [--photos [--remove-background auto|true|false] [--foreground FG]]
 
 Each shape is encoded (its octree for an autoencoder, a fixed view of its renders for an image
 model), decoded (octrees grow through the shared decode loop), its leaf patches sampled at one
@@ -206,14 +206,16 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
              align: bool = False, bundle: str | None = None, normals: str = "given",
              surface: str = DEFAULT_SURFACE, photos: bool = False, remove_background: str = "auto",
              keep_scan: bool = False, symmetry: float | None = None,
-             per_category: int | None = None) -> dict:
+             per_category: int | None = None, foreground: str | None = None) -> dict:
     """The results dictionary written by the CLI (see the module docstring).  ``bundle``: encode
     and decode with this exported bundle in onnxruntime instead of the torch model.  ``normals``:
     completion inputs built with the scanner's normals or with estimated ones.  ``surface``: the
     surface written to ``mesh_dir`` (both are measured).  ``photos``: image models see each shape's
     photo-like test view (a render on a held-out background, no alpha) through the service's
     background removal (the bundle's foreground network; ``remove_background`` as the service's
-    parameter), and the mask's IoU with the exact one is reported.  ``keep_scan``: completion outputs
+    parameter), and the mask's IoU with the exact one is reported; without a bundle, ``foreground``
+    (a foreground network's checkpoint or run, in torch: :func:`foreground_in_torch`) removes the
+    backgrounds, as the bundle it would be exported into would.  ``keep_scan``: completion outputs
     keep the scan's own patches where it saw the shape (:func:`model.octree.fuse.keep_scan`, the
     service's ``keep_scan``).  ``symmetry``: completion inputs are read with their mirror image
     where its plane has at least this support (:mod:`model.octree.symmetry`, the service's
@@ -239,6 +241,8 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
             raise ValueError(f"--bundle {bundle} serves {runtime.bundle.task}, but {run} is a {cfg.task} model")
     if photos and cfg.task != "image":
         raise ValueError("--photos goes with an image model")
+    if foreground is not None and (not photos or bundle is not None):
+        raise ValueError("--foreground goes with --photos and no --bundle (a bundle brings its own foreground network)")
     if keep_scan and cfg.task != "completion":
         raise ValueError("--keep-scan goes with a completion model")
     if symmetry is not None and cfg.task != "completion":
@@ -279,8 +283,11 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         metrics += ("input_chamfer_x1e3", "missing_x1e3", "input_missing_x1e3")
     if photos:
         metrics += ("mask_iou",)
-    segment = runtime.segment if runtime is not None and runtime.has_foreground else None
-    mask_spec = (runtime.bundle.mask_spec() if segment is not None else None) or MaskSpec()
+    if foreground is not None:
+        segment, mask_spec = foreground_in_torch(foreground)
+    else:
+        segment = runtime.segment if runtime is not None and runtime.has_foreground else None
+        mask_spec = (runtime.bundle.mask_spec() if segment is not None else None) or MaskSpec()
     per_cat: dict[str, dict[str, list[float]]] = {m: {} for m in metrics}
     per_shape: list[dict] = []
     confusion: dict[int, np.ndarray] = {}
@@ -354,7 +361,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     }
     if photos:
         results["input"] = {"kind": "photos", "remove_background": remove_background,
-                            "foreground_network": segment is not None,
+                            "foreground_network": segment is not None, "foreground": foreground,
                             "mask_sources": {k: sum(1 for r in per_shape if r["mask_source"] == k)
                                              for k in sorted({r["mask_source"] for r in per_shape})}}
     if surfaces:
@@ -428,6 +435,17 @@ def torch_segment(model, spec):
             logits = model.net(torch.from_numpy(mask_input(rgb, spec)[None])).numpy()
         return mask_output(logits[0, 0])
     return segment
+
+
+def foreground_in_torch(checkpoint: str) -> tuple:
+    """A foreground network's checkpoint or run folder, in torch: (its ``segment`` function, as
+    :func:`torch_segment`; its :class:`~model.preprocess.MaskSpec`, with the guided filter
+    calibrated for it): the background removal of the bundle it would be exported into."""
+    loaded = load_model(checkpoint)
+    if loaded.config.task != "foreground":
+        raise ValueError(f"--foreground {checkpoint} is a {loaded.config.task} model, not a foreground network")
+    spec = TASKS["foreground"].spec(loaded.config, loaded.meta)
+    return torch_segment(loaded.model, spec), spec
 
 
 def mask_ious(photos: list, segment, spec) -> list[float]:
@@ -512,9 +530,13 @@ def main(argv: list[str] | None = None) -> int:
                     help="run the model's exported ONNX bundle in onnxruntime instead of torch (default: torch)")
     ap.add_argument("--photos", action="store_true",
                     help="image models: evaluate on each shape's photo-like view (a render on a held-out "
-                         "background, no alpha) through the bundle's background removal, and report the mask IoU")
+                         "background, no alpha) through the bundle's background removal (or --foreground's), and report "
+                         "the mask IoU")
     ap.add_argument("--remove-background", choices=("auto", "true", "false"), default="auto",
                     help="with --photos: the service's parameter (default auto: the bundle's foreground network)")
+    ap.add_argument("--foreground", default=None,
+                    help="with --photos and no --bundle: a foreground network's checkpoint or run folder (in torch) "
+                         "that removes the backgrounds, as in the bundle it would be exported into")
     ap.add_argument("--normals", choices=("given", "estimated"), default="given",
                     help="completion: build the partial scans' octrees with the scanner's normals (default) "
                          "or with normals estimated from the points")
@@ -536,7 +558,7 @@ def main(argv: list[str] | None = None) -> int:
                            oracle=args.oracle, align=args.icp, bundle=args.bundle, normals=args.normals,
                            surface=args.surface, photos=args.photos, remove_background=args.remove_background,
                            keep_scan=args.keep_scan, symmetry=MIN_SUPPORT if args.symmetry else None,
-                           per_category=args.per_category)
+                           per_category=args.per_category, foreground=args.foreground)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

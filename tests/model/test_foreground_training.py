@@ -294,7 +294,7 @@ def test_the_bundle_carries_the_foreground_network_and_the_photo_evaluation_uses
         assert 0 <= r["mask_iou"] <= 1 and len(r["photo_size"]) == 2
     plain = evaluate(str(runs / "img"), str(tiny_data), "train", resolution=16, limit=3, photos=True)
     assert plain["input"] == {"kind": "photos", "remove_background": "auto", "foreground_network": False,
-                              "mask_sources": {"none": 3}}
+                              "foreground": None, "mask_sources": {"none": 3}}
     json.dumps(res)
 
 
@@ -376,3 +376,51 @@ def test_the_guided_filter_is_calibrated_on_validation_recorded_and_exported(tin
     assert meta["version"] != float32_bundle[1]["version"]   # the same networks unguided: what is served differs
     assert main([str(runs / "img"), "--data", str(tiny_data), "--mask-guide"]) == 2
     assert "foreground network" in capsys.readouterr().err
+
+
+def test_photos_without_a_bundle_take_the_foreground_network_in_torch_as_its_bundle_would(tiny_data, runs,
+                                                                                         float32_bundle):
+    from model.evaluate import evaluate
+
+    bundle, _ = float32_bundle
+    kw = dict(resolution=16, limit=3, photos=True)
+    served = evaluate(str(runs / "img"), str(tiny_data), "train", bundle=str(bundle), **kw)
+    torch_fg = evaluate(str(runs / "img"), str(tiny_data), "train", foreground=str(runs / "fg"), **kw)
+    assert torch_fg["input"]["foreground_network"] and torch_fg["input"]["foreground"] == str(runs / "fg")
+    assert torch_fg["input"]["mask_sources"] == served["input"]["mask_sources"]
+    for a, b in zip(torch_fg["per_shape"], served["per_shape"]):
+        assert a["mask_iou"] == pytest.approx(b["mask_iou"], abs=1e-3)
+        assert a["box"] == b["box"]
+    for bad, needle in ((dict(kw, photos=False), "goes with --photos"),
+                        (dict(kw, bundle=str(bundle)), "no --bundle")):
+        with pytest.raises(ValueError, match=needle):
+            evaluate(str(runs / "img"), str(tiny_data), "train", foreground=str(runs / "fg"), **bad)
+    with pytest.raises(ValueError, match="not a foreground network"):
+        evaluate(str(runs / "img"), str(tiny_data), "train", foreground=str(runs / "img"), **kw)
+
+
+def test_a_model_retrained_for_photos_is_chosen_on_the_validation_photos(tiny_data, runs, tmp_path, capsys):
+    from model.choose import main
+    from model.evaluate import evaluate
+
+    run, out = tmp_path / "s", tmp_path / "best"
+    # an autoencoder teacher trained long enough that its decoder's outputs are not empty
+    Trainer(config(tiny_data, tmp_path / "ae", iters=16, val_every=8, ckpt_every=8)).run()
+    Trainer(config(tiny_data, run, **dict(IMAGE, iters=4, val_every=2, teacher=str(tmp_path / "ae"),
+                                            photo_share=0.5, foreground_ratio=0.85))).run()
+    args = [str(run), "--data", str(tiny_data), "--out", str(out), "--per-category", "1", "--resolution", "16"]
+    assert main([*args, "--photos", str(runs / "fg")]) == 0
+    assert "on photos" in capsys.readouterr().out
+    kept = {}
+    for step in (2, 4):
+        folder = run / "steps" / f"{step:06d}"
+        assert not (folder / "chamfer.json").exists()              # the clean figures are another file
+        kept[step] = json.loads((folder / "chamfer-photos.json").read_text())["chamfer_x1e3"]
+        again = evaluate(str(folder), str(tiny_data), "val", resolution=16, per_category=1, photos=True,
+                         foreground=str(runs / "fg"))
+        assert again["chamfer_x1e3_category_mean"] == pytest.approx(kept[step])
+    meta = json.loads((out / "model.json").read_text())
+    assert meta["steps"] == min(kept, key=lambda s: (kept[s], s))
+    assert meta["chosen"]["foreground"] == str((runs / "fg").resolve()) and "photo-like" in meta["chosen"]["rule"]
+    assert main([*args, "--photos", str(tmp_path / "none")]) == 2
+    assert "no model.pt or checkpoint.pt" in capsys.readouterr().err
