@@ -7,8 +7,9 @@ checkpoint folder that every command taking a run reads (``--teacher``, ``--init
 
 The figures are :func:`model.curves.validation_chamfer`'s (measured once, kept beside each step's
 weights).  ``--photos FG`` (image models): measured as served on the validation shapes' photo-like
-views, their backgrounds removed by the foreground network FG, for a model trained for photographs.  Ties go to the earlier step.  ``FOLDER/model.json`` is the step's own, with ``chosen``
-added: the rule, the settings and every step's figure.  Rerunning picks up steps kept since.
+views, their backgrounds removed by the foreground network FG, for a model trained for photographs.
+Ties go to the earlier step.  ``FOLDER/model.json`` is the step's own, with ``chosen`` added: the
+rule, the settings and every step's figure.  Rerunning picks up steps kept since.
 """
 
 from __future__ import annotations
@@ -48,8 +49,9 @@ def choose(run: str | Path, data: str | Path, out: str | Path, per_category: int
     step = lowest_step(chamfer)
     source = run / STEPS_DIR / f"{step:06d}"
     meta = json.loads((source / "model.json").read_text())
-    views = "clean renders" if foreground is None else "photo-like views, backgrounds removed by the foreground network"
-    meta["chosen"] = {"rule": f"lowest validation Chamfer distance (x 10^3, category mean) of the kept steps, on {views}",
+    views = "clean renders" if foreground is None else "photo-like views as served (the foreground network's masks)"
+    meta["chosen"] = {"rule": "lowest validation Chamfer distance (x 10^3, category mean) of the kept steps, "
+                              f"on {views}",
                       "run": str(run.resolve()), "data": str(Path(data).resolve()),
                       "foreground": None if foreground is None else str(Path(foreground).resolve()),
                       "per_category": per_category, "resolution": resolution,

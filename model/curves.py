@@ -104,13 +104,7 @@ def validation_chamfer(run: str | Path, data: str | Path, per_category: int = 4,
     settings = {"per_category": per_category, "resolution": resolution, "manifest_sha256": sha256_file(manifest)}
     name = "chamfer.json"
     if foreground is not None:
-        weights = Path(foreground) / "model.pt"
-        if not weights.is_file():
-            weights = Path(foreground) / "checkpoint.pt"
-        if not weights.is_file():
-            raise ValueError(f"--photos {foreground}: no model.pt or checkpoint.pt (a foreground network's "
-                             "checkpoint or run folder)")
-        settings["foreground_sha256"] = sha256_file(weights)
+        settings["foreground"] = foreground_fingerprint(foreground)
         name = "chamfer-photos.json"
     out: dict[int, float] = {}
     for folder in sorted((Path(run) / STEPS_DIR).glob("*/model.json")):
@@ -132,6 +126,24 @@ def validation_chamfer(run: str | Path, data: str | Path, per_category: int = 4,
                                         "weights_sha256": weights}).encode())
         out[step] = np.nan if value is None else float(value)
     return out
+
+
+def foreground_fingerprint(foreground: str | Path) -> dict:
+    """What decides a foreground network's masks: its weights (sha256 of the float32 tensors in key
+    order, the same for a run and the checkpoint packaged from it) and its guided filter.
+    ValueError if ``foreground`` is no foreground network's run or checkpoint folder."""
+    import hashlib
+
+    from .train.config import read_run
+
+    saved = read_run(foreground)
+    if saved.config.task != "foreground":
+        raise ValueError(f"{foreground} is a {saved.config.task} model, not a foreground network")
+    digest = hashlib.sha256()
+    for key in sorted(saved.weights):
+        digest.update(key.encode())
+        digest.update(saved.weights[key].contiguous().numpy().tobytes())
+    return {"weights_sha256": digest.hexdigest(), "mask_guide": saved.meta.get("mask_guide")}
 
 
 def lowest_step(chamfer: dict[int, float]) -> int:

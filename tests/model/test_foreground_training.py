@@ -401,9 +401,11 @@ def test_photos_without_a_bundle_take_the_foreground_network_in_torch_as_its_bun
 
 def test_a_model_retrained_for_photos_is_chosen_on_the_validation_photos(tiny_data, runs, tmp_path, capsys):
     from model.choose import main
+    from model.curves import foreground_fingerprint
     from model.evaluate import evaluate
 
     run, out = tmp_path / "s", tmp_path / "best"
+    Trainer(config(tiny_data, tmp_path / "fg2", iters=2, **FG)).run()
     # an autoencoder teacher trained long enough that its decoder's outputs are not empty
     Trainer(config(tiny_data, tmp_path / "ae", iters=16, val_every=8, ckpt_every=8)).run()
     Trainer(config(tiny_data, run, **dict(IMAGE, iters=4, val_every=2, teacher=str(tmp_path / "ae"),
@@ -422,5 +424,10 @@ def test_a_model_retrained_for_photos_is_chosen_on_the_validation_photos(tiny_da
     meta = json.loads((out / "model.json").read_text())
     assert meta["steps"] == min(kept, key=lambda s: (kept[s], s))
     assert meta["chosen"]["foreground"] == str((runs / "fg").resolve()) and "photo-like" in meta["chosen"]["rule"]
-    assert main([*args, "--photos", str(tmp_path / "none")]) == 2
-    assert "no model.pt or checkpoint.pt" in capsys.readouterr().err
+    for bad, needle in ((tmp_path / "none", "neither a run folder"), (run, "not a foreground network")):
+        assert main([*args, "--photos", str(bad)]) == 2
+        err = capsys.readouterr().err
+        assert needle in err and err.count("\n") == 1
+    # the figures are kept with what decides the masks: another foreground network measures again
+    fingerprint = json.loads((run / "steps" / "000002" / "chamfer-photos.json").read_text())["settings"]["foreground"]
+    assert fingerprint == foreground_fingerprint(runs / "fg") != foreground_fingerprint(tmp_path / "fg2")
