@@ -182,6 +182,20 @@ def moving_average(values: np.ndarray, window: int) -> np.ndarray:
     return np.where(n > 0, (total[end] - total[start]) / np.maximum(n, 1), np.nan)
 
 
+LOG_SPAN = 10.0
+"""A panel whose positive values span more than this factor is drawn on a log scale."""
+
+
+def log_scale(values: list[np.ndarray]) -> bool:
+    """Whether a panel of these series reads better on a log scale: every finite value positive
+    and the largest more than :data:`LOG_SPAN` times the smallest (runs of different tasks, say
+    an autoencoder's Chamfer distance beside an image model's, would otherwise flatten all but
+    the largest)."""
+    finite = np.concatenate([np.asarray(v, float).ravel() for v in values] or [np.zeros(0)])
+    finite = finite[np.isfinite(finite)]
+    return bool(len(finite)) and finite.min() > 0 and finite.max() > LOG_SPAN * finite.min()
+
+
 def plot(curves: list[RunCurves], out: str | Path, terms: list[str] | None = None, window: int = 50) -> list[str]:
     """Draw the curves to a PNG; returns the terms drawn (default: every term that some run
     validated, else trained, on; 'total' first)."""
@@ -197,17 +211,22 @@ def plot(curves: list[RunCurves], out: str | Path, terms: list[str] | None = Non
     fig, axes = plt.subplots(1, len(terms), figsize=(4.2 * len(terms), 3.4), squeeze=False, sharex=True)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for ax, term in zip(axes[0], terms):
+        drawn = []
         for i, c in enumerate(curves):
             colour = colours[i % len(colours)]
             minutes = f", {c.seconds / 60:.0f} min" if c.seconds else ""
             last = max(int(s[-1]) for s in c.steps.values())
             if term in c.values.get("train", {}):
-                ax.plot(c.steps["train"], moving_average(c.values["train"][term], window), color=colour,
+                drawn.append(moving_average(c.values["train"][term], window))
+                ax.plot(c.steps["train"], drawn[-1], color=colour,
                         linewidth=1, alpha=0.6, label=f"{c.name} train ({last} steps{minutes})")
             if term in c.values.get("val", {}):
-                ax.plot(c.steps["val"], c.values["val"][term], color=colour, linewidth=2, marker="o",
+                drawn.append(c.values["val"][term])
+                ax.plot(c.steps["val"], drawn[-1], color=colour, linewidth=2, marker="o",
                         markersize=3, label=f"{c.name} validation")
-        ax.set_title(term)
+        if log_scale(drawn):
+            ax.set_yscale("log")
+        ax.set_title(term + (" (log scale)" if log_scale(drawn) else ""))
         ax.set_xlabel("step")
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=7)

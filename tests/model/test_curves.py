@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from model.curves import main, moving_average, read_curves
+from model.curves import log_scale, main, moving_average, read_curves
 
 
 def _write_run(folder, rows) -> None:
@@ -36,6 +36,14 @@ def test_rows_per_split_the_last_row_of_a_repeated_step_counts(tmp_path):
     assert c.values["val"]["total"] == pytest.approx([0.07, 0.06])
     assert c.seconds == 75.0 + 50.0                   # both processes' wall time: to step 150, then 100 -> 200
     assert sorted(c.terms("val")) == ["patch", "total"]
+
+
+def test_a_panel_spanning_more_than_ten_times_is_drawn_on_a_log_scale():
+    nan = float("nan")
+    assert log_scale([np.array([16.0, 2.3]), np.array([0.45, 0.5, nan])])       # an image run beside an autoencoder
+    assert not log_scale([np.array([1.7, 0.45]), np.array([0.39, 0.22])])          # 7.7x: linear
+    assert not log_scale([np.array([3.0, -1.0, 40.0])])                            # a loss below zero
+    assert not log_scale([np.array([0.0, 5.0])]) and not log_scale([np.array([nan])]) and not log_scale([])
 
 
 def test_moving_average_of_the_rows_before_each_skipping_gaps():
