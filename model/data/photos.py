@@ -6,8 +6,8 @@ or specks of light), under random lighting, with a soft shadow beneath the objec
 object and scene, blur, sensor noise and JPEG compression.  The result has no alpha; the exact object mask comes with it.
 
 Real photographs are scikit-image's sample images, split once: :data:`TRAIN_PHOTOS` for training,
-:data:`TEST_PHOTOS` only for the photo-like test split (none shows one of the dataset's
-categories).  The foreground network trains on these composites, the image model trains on them
+:data:`TEST_PHOTOS`, never in training, for the fixed photo-like views of every split (none
+shows one of the dataset's categories).  The foreground network trains on these composites, the image model trains on them
 after the segmentation step, and :func:`photo_split_view` makes the fixed photo-like test view of a
 shape, so every consumer composes photos with this one module.
 """
@@ -30,7 +30,9 @@ TRAIN_PHOTOS = ("astronaut.png", "chelsea.png", "coffee.png", "motorcycle_left.p
                 "camera.png", "coins.png", "moon.png", "page.png", "clock_motion.png", "ihc.png", "retina.jpg", "cell.png")
 """scikit-image sample photographs used as training backgrounds."""
 TEST_PHOTOS = ("rocket.jpg", "gravel.png", "hubble_deep_field.jpg", "text.png")
-"""Sample photographs kept out of training: backgrounds of the photo-like test split only."""
+"""Sample photographs kept out of training: the backgrounds of every split's fixed photo-like views
+(:func:`photo_split_view`: the test split's and the held-out seed's, and the validation split's that
+decisions are made on; the shapes of each split are their own, the four photographs are shared)."""
 SPLITS = {"train": TRAIN_PHOTOS, "test": TEST_PHOTOS}
 SCENES = ("gradient", "noise", "pattern", "shapes", "pebbles", "print", "specks")
 """The procedural scenes a background is drawn from, by name (the painters below)."""
