@@ -224,9 +224,10 @@ def plot(curves: list[RunCurves], out: str | Path, terms: list[str] | None = Non
                 drawn.append(c.values["val"][term])
                 ax.plot(c.steps["val"], drawn[-1], color=colour, linewidth=2, marker="o",
                         markersize=3, label=f"{c.name} validation")
-        if log_scale(drawn):
+        log = log_scale(drawn)
+        if log:
             ax.set_yscale("log")
-        ax.set_title(term + (" (log scale)" if log_scale(drawn) else ""))
+        ax.set_title(term + (" (log scale)" if log else ""))
         ax.set_xlabel("step")
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=7)

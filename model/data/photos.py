@@ -7,9 +7,9 @@ object and scene, blur, sensor noise and JPEG compression.  The result has no al
 
 Real photographs are scikit-image's sample images, split once: :data:`TRAIN_PHOTOS` for training,
 :data:`TEST_PHOTOS`, never in training, for the fixed photo-like views of every split (none
-shows one of the dataset's categories).  The foreground network trains on these composites, the image model trains on them
-after the segmentation step, and :func:`photo_split_view` makes the fixed photo-like test view of a
-shape, so every consumer composes photos with this one module.
+shows one of the dataset's categories).  The foreground network trains on these composites, the
+image model trains on them after the segmentation step, and :func:`photo_split_view` makes the
+fixed photo-like view of a shape, so every consumer composes photos with this one module.
 """
 
 from __future__ import annotations
