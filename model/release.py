@@ -119,7 +119,8 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
     meta = {
         "format": CHECKPOINT_FORMAT,
         "task": recipe.task,
-        "config": {k: v for k, v in config.items() if k not in ("data", "out", "progress")},
+        "config": {k: _named_here(v) if k in ("teacher", "init") else v
+                   for k, v in config.items() if k not in ("data", "out", "progress")},
         "steps": saved.meta["steps"],
         "init": _init_of(run),
         "calibration": calibration,
@@ -137,6 +138,19 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
         "evaluation": None,
     }
     return write_weights(out, saved.weights, meta)
+
+
+def _named_here(value):
+    """A run's absolute path (the teacher or the start it was trained from) as the current folder
+    names it: relative to it, or through one of its links (``runs -> /disk/runs`` gives
+    ``runs/ae7``), so provenance names no machine's folders; anything else unchanged."""
+    if not isinstance(value, str) or not Path(value).is_absolute():
+        return value
+    here, path = Path.cwd(), Path(value).resolve()
+    for name, root in [(".", here.resolve()), *((p.name, p.resolve()) for p in here.iterdir() if p.is_symlink())]:
+        if path.is_relative_to(root):
+            return str(Path(name) / path.relative_to(root))
+    return value
 
 
 def _init_of(run: Path) -> dict | None:

@@ -473,3 +473,20 @@ def test_release_packages_a_run_with_the_dataset_it_was_trained_on(tiny_data, tm
     assert meta["train_command"] is None and meta["steps"] == 2
     assert meta["evaluation"]["split"] == "test" and meta["evaluation"]["shapes"] == 2
     assert not (work / "data").exists() and "test Chamfer" in capsys.readouterr().out
+
+
+def test_provenance_names_a_run_as_the_repository_does(tmp_path, monkeypatch):
+    """A teacher trained elsewhere on the disk (/disk/runs/ae7) is recorded as the repository's link
+    names it (runs/ae7 for runs -> /disk/runs), a folder inside the repository relative to it; other
+    absolute paths, relative paths and None are kept."""
+    from model.release import _named_here
+
+    disk, repo = tmp_path / "disk", tmp_path / "repo"
+    (disk / "runs" / "ae7").mkdir(parents=True)
+    (repo / "work" / "teacher").mkdir(parents=True)
+    (repo / "runs").symlink_to(disk / "runs")
+    monkeypatch.chdir(repo)
+    assert _named_here(str(disk / "runs" / "ae7")) == "runs/ae7"
+    assert _named_here(str(repo / "work" / "teacher")) == "work/teacher"
+    assert _named_here(str(tmp_path / "elsewhere")) == str(tmp_path / "elsewhere")
+    assert _named_here("runs/ae7") == "runs/ae7" and _named_here(None) is None
