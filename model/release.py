@@ -147,7 +147,8 @@ def _named_here(value):
     if not isinstance(value, str) or not Path(value).is_absolute():
         return value
     here, path = Path.cwd(), Path(value).resolve()
-    for name, root in [(".", here.resolve()), *((p.name, p.resolve()) for p in here.iterdir() if p.is_symlink())]:
+    roots = [(".", here.resolve())] + [(link.name, link.resolve()) for link in here.iterdir() if link.is_symlink()]
+    for name, root in roots:
         if path.is_relative_to(root):
             return str(Path(name) / path.relative_to(root))
     return value
