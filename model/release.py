@@ -122,7 +122,7 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
         "config": {k: _named_here(v) if k in ("teacher", "init") else v
                    for k, v in config.items() if k not in ("data", "out", "progress")},
         "steps": saved.meta["steps"],
-        "init": _init_of(run),
+        "init": _paths_named_here(_init_of(run)),
         "calibration": calibration,
         "command": "python -m model.release " + " ".join(shlex.quote(c) for c in command),
         "train_command": ("python -m model.train " + " ".join(shlex.quote(c) for c in recipe.train)
@@ -152,6 +152,15 @@ def _named_here(value):
         if path.is_relative_to(root):
             return str(Path(name) / path.relative_to(root))
     return value
+
+
+def _paths_named_here(record: dict | None) -> dict | None:
+    """An init record (``init.json``: the folder a run started from, nested for a chain of
+    starts) with every ``path`` named as :func:`_named_here` names it."""
+    if record is None:
+        return None
+    return {k: _paths_named_here(v) if isinstance(v, dict) else _named_here(v) if k == "path" else v
+            for k, v in record.items()}
 
 
 def _init_of(run: Path) -> dict | None:
