@@ -3,7 +3,7 @@
     python -m model.evaluate RUN --data DIR [--split test] --out results.json [--mesh-dir DIR]
                              [--resolution 128] [--limit N] [--per-category N] [--oracle structure|all] [--icp]
                              [--bundle BUNDLE_DIR]
-                             [--photos [--remove-background auto|true|false] [--foreground FG]]
+                             [--photos [--remove-background auto|true|false] [--foreground FG | --exact-masks]]
 
 Each shape is encoded (its octree for an autoencoder, a fixed view of its renders for an image
 model), decoded (octrees grow through the shared decode loop), its leaf patches sampled at one
@@ -206,7 +206,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
              align: bool = False, bundle: str | None = None, normals: str = "given",
              surface: str = DEFAULT_SURFACE, photos: bool = False, remove_background: str = "auto",
              keep_scan: bool = False, symmetry: float | None = None,
-             per_category: int | None = None, foreground: str | None = None) -> dict:
+             per_category: int | None = None, foreground: str | None = None, exact_masks: bool = False) -> dict:
     """The results dictionary written by the CLI (see the module docstring).  ``bundle``: encode
     and decode with this exported bundle in onnxruntime instead of the torch model.  ``normals``:
     completion inputs built with the scanner's normals or with estimated ones.  ``surface``: the
@@ -215,7 +215,8 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     background removal (the bundle's foreground network; ``remove_background`` as the service's
     parameter), and the mask's IoU with the exact one is reported; without a bundle, ``foreground``
     (a foreground network's checkpoint or run, in torch: :func:`foreground_in_torch`) removes the
-    backgrounds, as the bundle it would be exported into would.  ``keep_scan``: completion outputs
+    backgrounds, as the bundle it would be exported into would; ``exact_masks`` (a diagnostic) sends
+    each photo with its exact mask as alpha instead, what a perfect foreground network would give.  ``keep_scan``: completion outputs
     keep the scan's own patches where it saw the shape (:func:`model.octree.fuse.keep_scan`, the
     service's ``keep_scan``).  ``symmetry``: completion inputs are read with their mirror image
     where its plane has at least this support (:mod:`model.octree.symmetry`, the service's
@@ -243,6 +244,8 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         raise ValueError("--photos goes with an image model")
     if foreground is not None and (not photos or bundle is not None):
         raise ValueError("--foreground goes with --photos and no --bundle (a bundle brings its own foreground network)")
+    if exact_masks and (not photos or foreground is not None):
+        raise ValueError("--exact-masks goes with --photos and takes the place of a foreground network (no --foreground)")
     if keep_scan and cfg.task != "completion":
         raise ValueError("--keep-scan goes with a completion model")
     if symmetry is not None and cfg.task != "completion":
@@ -301,7 +304,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         guide = None
         if photos:
             images, framing = photo_batch([records.samples[i] for i in idx], task.spec(cfg), segment,
-                                          remove_background, mask_spec)
+                                          remove_background, mask_spec, exact_masks)
             with torch.no_grad():
                 latent = (torch.from_numpy(runtime.encode_image(images)) if runtime is not None
                           else model.encoder(torch.from_numpy(images)))
@@ -361,7 +364,8 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     }
     if photos:
         results["input"] = {"kind": "photos", "remove_background": remove_background,
-                            "foreground_network": segment is not None, "foreground": foreground,
+                            "foreground_network": segment is not None and not exact_masks, "foreground": foreground,
+                            "exact_masks": exact_masks,
                             "mask_sources": {k: sum(1 for r in per_shape if r["mask_source"] == k)
                                              for k in sorted({r["mask_source"] for r in per_shape})}}
     if surfaces:
@@ -537,6 +541,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--foreground", default=None,
                     help="with --photos and no --bundle: a foreground network's checkpoint or run folder (in torch) "
                          "that removes the backgrounds, as in the bundle it would be exported into")
+    ap.add_argument("--exact-masks", action="store_true",
+                    help="diagnostic, with --photos: send each photo with its exact mask as alpha (what a perfect "
+                         "foreground network would give) instead of removing its background")
     ap.add_argument("--normals", choices=("given", "estimated"), default="given",
                     help="completion: build the partial scans' octrees with the scanner's normals (default) "
                          "or with normals estimated from the points")
@@ -558,7 +565,8 @@ def main(argv: list[str] | None = None) -> int:
                            oracle=args.oracle, align=args.icp, bundle=args.bundle, normals=args.normals,
                            surface=args.surface, photos=args.photos, remove_background=args.remove_background,
                            keep_scan=args.keep_scan, symmetry=MIN_SUPPORT if args.symmetry else None,
-                           per_category=args.per_category, foreground=args.foreground)
+                           per_category=args.per_category, foreground=args.foreground,
+                           exact_masks=args.exact_masks)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

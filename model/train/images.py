@@ -97,16 +97,21 @@ def frame_or_whole(rgb: np.ndarray, spec: ImageSpec, segment=None, remove_backgr
 
 
 def photo_batch(samples: list[Sample], spec: ImageSpec, segment=None, remove_background: str = "auto",
-                mask_spec: MaskSpec = MaskSpec()) -> tuple[np.ndarray, list[dict]]:
+                mask_spec: MaskSpec = MaskSpec(), exact_masks: bool = False) -> tuple[np.ndarray, list[dict]]:
     """Encoder inputs (B, 3, S, S) of each shape's fixed photo-like test view
     (:func:`photo_split_view`) through :func:`frame_or_whole` with ``segment`` (the foreground
     network, or None), and per shape what was done: the mask's source, its IoU with the exact
-    mask (None without a mask, 0 when the network found nothing), the crop box."""
+    mask (None without a mask, 0 when the network found nothing), the crop box.
+    ``exact_masks``: a diagnostic, each photo sent with its exact mask as its alpha channel (what a
+    perfect foreground network would give; the mask's source is then "alpha")."""
     out = np.empty((len(samples), 3, spec.size, spec.size), np.float32)
     info = []
     for i, s in enumerate(samples):
         photo = photo_split_view(s.images, s.shape_id)
-        framed = frame_or_whole(photo.rgb, spec, segment, remove_background, mask_spec)
+        image = photo.rgb
+        if exact_masks:
+            image = np.dstack([photo.rgb, np.round(np.clip(photo.mask, 0, 1) * 255).astype(np.uint8)])
+        framed = frame_or_whole(image, spec, segment, remove_background, mask_spec)
         out[i] = framed.image
         iou = None
         if framed.mask is not None:

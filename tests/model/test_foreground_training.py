@@ -294,8 +294,17 @@ def test_the_bundle_carries_the_foreground_network_and_the_photo_evaluation_uses
         assert 0 <= r["mask_iou"] <= 1 and len(r["photo_size"]) == 2
     plain = evaluate(str(runs / "img"), str(tiny_data), "train", resolution=16, limit=3, photos=True)
     assert plain["input"] == {"kind": "photos", "remove_background": "auto", "foreground_network": False,
-                              "foreground": None, "mask_sources": {"none": 3}}
+                              "foreground": None, "exact_masks": False, "mask_sources": {"none": 3}}
     json.dumps(res)
+    # the diagnostic: each photo sent with its exact mask as alpha, what a perfect foreground network gives
+    exact = evaluate(str(runs / "img"), str(tiny_data), "train", resolution=16, limit=3, bundle=str(bundle),
+                     photos=True, exact_masks=True)
+    assert exact["input"]["mask_sources"] == {"alpha": 3} and not exact["input"]["foreground_network"]
+    assert all(r["mask_iou"] > 0.99 for r in exact["per_shape"])
+    assert exact["mask_iou_category_mean"] >= res["mask_iou_category_mean"]
+    for bad in (dict(photos=False), dict(photos=True, foreground=str(runs / "fg"))):
+        with pytest.raises(ValueError, match="--exact-masks"):
+            evaluate(str(runs / "img"), str(tiny_data), "train", resolution=16, limit=3, exact_masks=True, **bad)
 
 
 def test_the_default_bundle_stores_the_foreground_network_in_int8_and_it_masks_as_torch_does(runs, float32_bundle,
