@@ -1,7 +1,7 @@
 """Decode-time calibration of an octree decoder's split decisions.
 
     python -m model.calibrate RUN --data DIR --out CALIBRATED_RUN [--split val]
-    python -m model.calibrate COMPLETION_RUN --data DIR --keep-scan [--split val]
+    python -m model.calibrate COMPLETION_RUN --data DIR --keep-scan [--split val] [--per-category N]
     python -m model.calibrate FOREGROUND_RUN --data DIR --mask-guide [--split val]
 
 A class-balanced structure loss makes the *split* class survive, at the price of predicting it
@@ -36,7 +36,7 @@ from .networks.decoder import teacher_skips
 from .nn.tensors import OctreeTensors
 from .octree import SPLIT
 from .checkpoint import load_model
-from .evaluate import MISSING_GAP, decoded_points
+from .evaluate import MISSING_GAP, decoded_points, split_subset
 from .results import category_means
 from .octree.metrics import Reference, mean_squared_distance, missing_part
 from .results_table import paired_difference
@@ -139,7 +139,8 @@ def keep_scan_candidates(depth: int) -> list[dict[int, float]]:
 
 
 def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int = 8, seed: int = 0,
-                        limit: int | None = None, resolution: int = 128, draws: int = 10_000) -> dict:
+                        limit: int | None = None, resolution: int = 128, draws: int = 10_000,
+                        per_category: int | None = None) -> dict:
     """Choose the empty-class bias a completion decodes with when its output keeps the scan, on
     ``split``, and record it with the run (model.json's ``keep_scan`` of a checkpoint folder, else
     keep_scan.json of the run folder).
@@ -151,7 +152,9 @@ def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int
     significantly above the lowest's (its paired 95% bootstrap interval over the shapes,
     ``draws`` draws, reaches 0), the one closest to the missing part (the completion's own
     measure, :data:`model.evaluate.MISSING_GAP`).  ``limit``: the first shapes of the
-    split only; ``resolution``: the patch sampling grid."""
+    split only; ``per_category``: of those, the first so many of each category (a subset every
+    category is in: each candidate decodes every shape, which at depth 7 costs hours on the whole
+    split); ``resolution``: the patch sampling grid."""
     loaded = load_model(run)
     model, cfg = loaded.model, loaded.config
     if cfg.task != "completion" or not isinstance(model.decoder, OctreeDecoder):
@@ -159,11 +162,12 @@ def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int
     cfg.data = data
     task = TASKS[cfg.task]
     dataset = task.dataset(cfg, split, seed, points=20_000, limit=limit)
+    chosen = split_subset(data, split, cfg.categories, limit, len(dataset), per_category)
     candidates = keep_scan_candidates(cfg.depth)
     rows: list[list[dict]] = [[] for _ in candidates]
     floor: dict[str, list[float]] = {}
-    for s in range(0, len(dataset), batch_size):
-        idx = np.arange(s, min(len(dataset), s + batch_size))
+    for s in range(0, len(chosen), batch_size):
+        idx = chosen[s:s + batch_size]
         with torch.no_grad():
             latent, guide = encode_with_guide(model, cfg, dataset, idx)
         scans = [dataset.scan(i) for i in idx]
@@ -186,7 +190,7 @@ def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int
     chamfer = [category_mean(r, "chamfer_x1e3") for r in rows]
     missing = [category_mean(r, "missing_x1e3") for r in rows]
     report = {"empty_bias": {str(d): b for d, b in candidates[best].items()}, "split": split, "resolution": resolution,
-              "shapes": len(dataset), "chamfer_x1e3_category_mean": round(chamfer[best], 4),
+              "shapes": len(chosen), "per_category": per_category, "chamfer_x1e3_category_mean": round(chamfer[best], 4),
               "missing_x1e3_category_mean": round(missing[best], 4),
               "scan_chamfer_x1e3_category_mean": round(float(np.mean([np.mean(v) for v in floor.values()])), 4),
               "rule": "the least missing-part distance among the settings whose Chamfer is not significantly "
@@ -295,19 +299,23 @@ def main(argv: list[str] | None = None) -> int:
                          "(model.json or mask_guide.json)")
     ap.add_argument("--limit", type=int, default=None,
                     help="--keep-scan, --mask-guide: the first N shapes of the split only")
+    ap.add_argument("--per-category", type=int, default=None,
+                    help="--keep-scan: only the first N shapes of each category (a smaller subset every category is in)")
     ap.add_argument("--resolution", type=int, default=128,
                     help="--keep-scan: patch sampling grid, a power of two (default 128, the paper's)")
     args = ap.parse_args(argv)
     try:
         if args.limit is not None and args.limit < 1:
             raise ValueError("--limit must be at least 1")
+        if args.per_category is not None and (not args.keep_scan or args.per_category < 1):
+            raise ValueError("--per-category takes a number of shapes >= 1 and goes with --keep-scan")
         if args.keep_scan and args.mask_guide:
             raise ValueError("give one of --keep-scan and --mask-guide")
         if args.mask_guide:
             report = calibrate_mask_guide(args.run, args.data, args.split, limit=args.limit)
         elif args.keep_scan:
             report = calibrate_keep_scan(args.run, args.data, args.split, limit=args.limit,
-                                         resolution=args.resolution)
+                                         resolution=args.resolution, per_category=args.per_category)
         elif args.out is None:
             raise ValueError("--out is required (or --keep-scan)")
         else:

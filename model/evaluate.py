@@ -201,6 +201,18 @@ def first_of_each(categories: list[str], n: int) -> np.ndarray:
     return np.asarray(keep, dtype=np.int64)
 
 
+def split_subset(data: str | Path, split: str, categories: tuple[str, ...] | None, limit: int | None,
+                 count: int, per_category: int | None) -> np.ndarray:
+    """Indices into a dataset of ``count`` shapes of ``split`` (the manifest's rows, in its order):
+    all of them, or with ``per_category`` the first so many of each category."""
+    if per_category is None:
+        return np.arange(count)
+    rows = manifest_rows(Path(data), split, None, categories, limit)[1]
+    if len(rows) != count:
+        raise ValueError(f"the {split} split has {count} shapes but {len(rows)} manifest rows")
+    return first_of_each([r["category"] for r in rows], per_category)
+
+
 def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, limit: int | None = None,
              mesh_dir: str | None = None, batch_size: int = 8, seed: int = 0, oracle: str = "none",
              align: bool = False, bundle: str | None = None, normals: str = "given",
@@ -271,12 +283,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
         fill_bias = runtime.bundle.keep_scan_bias if runtime is not None else empty_bias_of(loaded.meta.get("keep_scan"))
     extra = {"normals": normals, "symmetry": symmetry} if completion else {}
     records = task.dataset(cfg, split, seed, points=20_000, limit=limit, **extra)
-    chosen = np.arange(len(records))
-    if per_category is not None:       # the dataset's rows are the manifest's, in its order
-        rows = manifest_rows(Path(data), split, None, cfg.categories, limit)[1]
-        if len(rows) != len(records):
-            raise ValueError(f"the {split} split has {len(records)} shapes but {len(rows)} manifest rows")
-        chosen = first_of_each([r["category"] for r in rows], per_category)
+    chosen = split_subset(data, split, cfg.categories, limit, len(records), per_category)
     metrics = ("chamfer_x1e3", "chamfer_icp_x1e3") if align else ("chamfer_x1e3",)
     surfaces = octree_decoder and model.decoder.has_plane(cfg.depth)
     if surfaces:

@@ -112,6 +112,16 @@ def test_completion_training_resumes_and_evaluates_against_the_input_floor(scan_
                           "--resolution", "32", "--keep-scan", "--out", str(again)]) == 0
     assert json.loads(again.read_text())["keep_scan_empty_bias"] == chosen
     assert [r["input_chamfer_x1e3"] for r in kept["per_shape"]] == [r["input_chamfer_x1e3"] for r in plain["per_shape"]]
+    # on a subset every category is in: the first shape of each (the split's rows are by category)
+    assert calibrate_main([str(tmp_path / "a"), "--data", str(scan_data), "--split", "train", "--keep-scan",
+                           "--per-category", "1", "--resolution", "32"]) == 0
+    subset = json.loads((tmp_path / "a" / "keep_scan.json").read_text())
+    manifest = json.loads((scan_data / "manifest.json").read_text())
+    categories = {r["category"] for r in manifest["records"] if r["split"] == "train"}
+    assert subset["shapes"] == len(categories) == 2 and subset["per_category"] == 1
+    assert calibrate_main([str(tmp_path / "a"), "--data", str(scan_data), "--per-category", "1", "--out",
+                           str(tmp_path / "x")]) == 2
+    assert not (tmp_path / "x").exists()
 
 
 def test_completion_cache_is_rebuilt_when_stale_or_damaged(scan_data):
