@@ -228,12 +228,13 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     parameter), and the mask's IoU with the exact one is reported; without a bundle, ``foreground``
     (a foreground network's checkpoint or run, in torch: :func:`foreground_in_torch`) removes the
     backgrounds, as the bundle it would be exported into would; ``exact_masks`` (a diagnostic) sends
-    each photo with its exact mask as alpha instead, what a perfect foreground network would give.  ``keep_scan``: completion outputs
-    keep the scan's own patches where it saw the shape (:func:`model.octree.fuse.keep_scan`, the
-    service's ``keep_scan``).  ``symmetry``: completion inputs are read with their mirror image
-    where its plane has at least this support (:mod:`model.octree.symmetry`, the service's
-    ``symmetry``).  ``per_category``: only the first so many shapes of each category (of the
-    split's first ``limit``), a subset that every category is in."""
+    each photo with its exact mask as alpha instead, what a perfect foreground network would give.
+    ``keep_scan``: completion outputs keep the scan's own patches where it saw the shape
+    (:func:`model.octree.fuse.keep_scan`, the service's ``keep_scan``).  ``symmetry``: completion
+    inputs are read with their mirror image where its plane has at least this support
+    (:mod:`model.octree.symmetry`, the service's ``symmetry``).  ``per_category``: only the first
+    so many shapes of each category (of the split's first ``limit``), a subset that every category
+    is in."""
     if oracle not in ORACLES:
         raise ValueError(f"--oracle must be one of {', '.join(ORACLES)}")
     loaded = load_model(run)
