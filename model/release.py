@@ -105,7 +105,8 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
             data_by_recipe: bool = True) -> dict:
     """Write ``out/model.pt`` (the plain state_dict in half precision) and ``out/model.json``
     (provenance; its evaluation is added by :func:`record_evaluation`, measured on exactly these
-    weights).  ``by_recipe=False``: the run was not trained by the recipe's commands, so none are
+    weights).  The decode settings chosen for the run's weights on the validation split
+    (``model.calibrate --keep-scan``, ``--mask-guide``) go with them.  ``by_recipe=False``: the run was not trained by the recipe's commands, so none are
     recorded (its configuration and steps are); ``data_by_recipe=False``: nor was ``data`` built by
     its build command (the manifest's settings are recorded)."""
     from .train.config import read_run, write_weights
@@ -137,6 +138,9 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
                  "manifest_sha256": sha256_file(data / "manifest.json")},
         "evaluation": None,
     }
+    for key in ("keep_scan", "mask_guide"):     # decode settings chosen on validation for these weights
+        if saved.meta.get(key) is not None:
+            meta[key] = saved.meta[key]
     return write_weights(out, saved.weights, meta)
 
 

@@ -410,6 +410,12 @@ def test_a_released_checkpoint_is_stored_in_half_precision_and_evaluated_as_stor
     loaded = load_model(out).model.state_dict()
     for k, v in trained.items():
         assert loaded[k].dtype == v.dtype and torch.equal(loaded[k], v.half().to(v.dtype)), k
+    assert "keep_scan" not in meta and "mask_guide" not in meta
+    # a decode setting chosen for the run's weights (model.calibrate --keep-scan) goes with them
+    chosen = {"empty_bias": {"5": 1.0}, "split": "val"}
+    (tmp_path / "run" / "keep_scan.json").write_text(json.dumps(chosen))
+    again = package(tmp_path / "run", tiny_data, tmp_path / "again", RECIPES["completion"], ["completion"])
+    assert again["keep_scan"] == chosen and load_model(tmp_path / "again").meta["keep_scan"] == chosen
     assert evaluate_main([str(out), "--data", str(tiny_data), "--split", "val", "--out", str(tmp_path / "e.json")]) == 0
     meta = record_evaluation(out, json.loads((tmp_path / "e.json").read_text()))
     assert meta["evaluation"]["shapes"] > 0 and "per_shape" not in meta["evaluation"]
