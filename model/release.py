@@ -106,9 +106,10 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
     """Write ``out/model.pt`` (the plain state_dict in half precision) and ``out/model.json``
     (provenance; its evaluation is added by :func:`record_evaluation`, measured on exactly these
     weights).  The decode settings chosen for the run's weights on the validation split
-    (``model.calibrate --keep-scan``, ``--mask-guide``) go with them.  ``by_recipe=False``: the run was not trained by the recipe's commands, so none are
-    recorded (its configuration and steps are); ``data_by_recipe=False``: nor was ``data`` built by
-    its build command (the manifest's settings are recorded)."""
+    (``model.calibrate --keep-scan``, ``--mask-guide``) go with them.  ``by_recipe=False``: the run
+    was not trained by the recipe's commands, so none are recorded (its configuration and steps
+    are); ``data_by_recipe=False``: nor was ``data`` built by its build command (the manifest's
+    settings are recorded)."""
     from .train.config import read_run, write_weights
 
     saved = read_run(run)                  # a run folder, or a checkpoint folder such as a step the run kept
