@@ -66,7 +66,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    "manifest.shard-K-of-N.json; join the parts with merge (default: the whole dataset)")
     b.add_argument("--splits", nargs="+", choices=("train", "val", "test"), default=None,
                    help="build only the records of these splits (the same records a whole build makes; "
-                        "e.g. --splits test to evaluate without building the training set)")
+                        "e.g. --splits test to evaluate without building the training set); the "
+                        "manifest still lists the other splits' records already built in --out")
     b.add_argument("--quiet", action="store_true", help="no progress bar")
     m = sub.add_parser("merge", help="join shard builds (--shard K/N) into one dataset and its manifest")
     m.add_argument("--out", required=True, help="dataset folder for the merged manifest (records are copied "
@@ -113,14 +114,17 @@ def run(args: argparse.Namespace) -> dict:
         tasks = layout_tasks(args.source, args.root, args.per_category, cats, args.shapenet_root)
         if not tasks:
             raise ValueError(f"no shapes found under {args.root} for --source {args.source}")
+    keep = []
     if args.splits:
+        keep = [t for t in tasks if t.split not in args.splits]     # listed again where already built
         tasks = [t for t in tasks if t.split in args.splits]
         if not tasks:
             raise ValueError(f"no shapes of splits {', '.join(args.splits)} among those asked for")
     cfg = BuildConfig(depth=args.depth, views=args.views, render_size=args.render_size,
                       partial_scans=args.partial, scan_resolution=args.scan_resolution, seed=args.seed,
                       generator=args.generator, up=args.up)
-    return build_dataset(args.out, tasks, cfg, workers=args.workers, progress=not args.quiet, shard=shard)
+    return build_dataset(args.out, tasks, cfg, workers=args.workers, progress=not args.quiet, shard=shard,
+                         keep=keep)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -276,13 +276,16 @@ def _manifest(cfg: BuildConfig, done: list[RecordSummary], shard: Shard | None =
 
 
 def build_dataset(out: str | Path, tasks: list[ShapeTask], cfg: BuildConfig, workers: int = 1,
-                  progress: bool = True, shard: Shard | None = None) -> dict:
+                  progress: bool = True, shard: Shard | None = None, keep: list[ShapeTask] = ()) -> dict:
     """Build every task's record under ``out`` (skipping finished ones) and write the manifest;
-    with ``shard``, only that shard's records and ``manifest.shard-K-of-N.json`` (see :func:`merge_shards`)."""
+    with ``shard``, only that shard's records and ``manifest.shard-K-of-N.json`` (see :func:`merge_shards`).
+    ``keep``: tasks not to build, listed in the manifest too where ``out`` already holds their
+    finished records (a build of some splits keeps the others an earlier build made)."""
     from tqdm import tqdm
 
     if shard is not None:
         tasks = [t for t in tasks if shard.holds(t)]
+        keep = [t for t in keep if shard.holds(t)]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     for tmp in out.rglob(TEMP_PREFIX + "*"):  # leftovers of a killed build
@@ -305,7 +308,8 @@ def build_dataset(out: str | Path, tasks: list[ShapeTask], cfg: BuildConfig, wor
             done.append(_work(j))
             bar.update()
     bar.close()
-    manifest = _manifest(cfg, done, shard)
+    kept = [s for s in (_existing(out, t, cfg) for t in keep) if s is not None]
+    manifest = _manifest(cfg, done + kept, shard)
     name = shard.manifest_name if shard is not None else "manifest.json"
     write_atomic(out / name, (json.dumps(manifest, indent=1) + "\n").encode())
     return manifest

@@ -270,3 +270,8 @@ def test_building_only_some_splits_makes_the_same_records_as_a_whole_build(tmp_p
     assert kept == [r for r in rows if r["split"] in ("val", "test")]
     assert 0 < len(kept) < len(rows)
     assert all((some / r["path"]).read_bytes() == (whole / r["path"]).read_bytes() for r in kept)
+    # the other split built later into the same folder: the manifest lists both, as a whole build's
+    assert main([*args, "--out", str(some), "--splits", "train"]) == 0
+    assert json.loads((some / "manifest.json").read_text())["records"] == rows
+    assert main([*args, "--out", str(some), "--splits", "test"]) == 0      # nothing to build: the same
+    assert json.loads((some / "manifest.json").read_text())["records"] == rows
