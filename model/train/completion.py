@@ -19,7 +19,7 @@ from ..octree import Normalization, Octree, build_octree, scan_frame, scan_octre
 from ..octree.batch import merge_octrees
 from ..octree.pointcloud import normalization_of
 from ..octree.serialize import octree_from_arrays, octree_to_arrays
-from ..octree.symmetry import find_mirror, mirror_cloud
+from ..octree.symmetry import SHEET, find_mirror, mirror_cloud
 from .cache import cache_dir, derived_arrays, load_derived, read_cached
 from .data import LazySequence, Sample, check_stream, manifest_rows, pick_points
 
@@ -81,8 +81,9 @@ class CompletionSet:
             raise ValueError(f"{data_dir} has no partial scans; rebuild with --partial-scans 2")
         built = manifest["config"]["depth"]
         key = {"v": CACHE_VERSION, "depth": built, "kind": kind}
-        if symmetry is not None:
+        if symmetry is not None:     # the mirror's rules are part of what the cached inputs are
             key["symmetry"] = symmetry
+            key["sheet"] = SHEET
         cache = cache_dir(data_dir, f"completion-{kind}", key)
         keep = ("points", "partial_points", "partial_offsets")
         derive = functools.partial(record_octrees, depth=built, kind=kind, symmetry=symmetry)

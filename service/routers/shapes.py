@@ -60,8 +60,8 @@ KEEP_SCAN_Q = Query(True, description="true: where the scan has points the outpu
                     "finest octants; false: the network's output alone (it re-draws the scanned parts too, coarser)")
 SYMMETRY_Q = Query(True, description="true: when the scan is mirror-symmetric across a left-right plane (x = c, "
                    f"the scan upright: +Y up, or +Z with up=z; at least {MIN_SUPPORT:.0%} of it landing on itself "
-                   "mirrored), it is completed from itself and its mirror image, so a side the scanner missed starts "
-                   "from the side it saw; X-Symmetry says what was found; false: the scan as sent")
+                   "mirrored, and not a flat sheet), it is completed from itself and its mirror image, so a side the "
+                   "scanner missed starts from the side it saw; X-Symmetry says what was found; false: the scan as sent")
 UP_Q = Query("y", description="the upload's up axis: y (the models' convention, as glTF and ShapeNet) or z (as CAD, "
              "most scanners and ModelNet40); a z-up shape is turned upright for the networks, which know objects "
              "standing on +Y, and a completed shape is turned back, so it comes in the upload's coordinates")
@@ -154,11 +154,11 @@ async def complete(points: UploadFile = File(..., description="PLY (ascii/binary
 
 
 def symmetry_header(mirror: Mirror | None) -> str:
-    """X-Symmetry: "off" (not asked), else whether the scan was mirrored, its plane in the scan's
-    coordinates and the plane's support."""
+    """X-Symmetry: "off" (not asked), else whether the scan was mirrored (a sheet never is), its
+    plane in the scan's coordinates and the plane's support."""
     if mirror is None:
         return "off"
-    used = "mirrored" if mirror.supported() else "not mirrored"
+    used = "mirrored" if mirror.supported() else "not mirrored (a sheet)" if mirror.sheet else "not mirrored"
     return f"{used}; plane x={mirror.offset:.6g}; support={mirror.support:.3f}"
 
 

@@ -159,6 +159,20 @@ def test_complete_drops_points_far_from_the_scan_and_says_how_many(client, cloud
         assert answers[0].content == answers[1].content
 
 
+def test_complete_never_mirrors_a_flat_sheet_and_says_so(client):
+    """A scanned relief (a flat strip, a head at one end): its outline lands on itself mirrored,
+    but a sheet is completed as sent, and X-Symmetry says why."""
+    rng = np.random.default_rng(0)
+    strip = rng.uniform([-0.5, -0.08, 0.0], [0.5, 0.08, 0.0], (6000, 3))
+    head = rng.uniform([0.38, -0.13, 0.0], [0.5, 0.13, 0.0], (600, 3))
+    pts = np.r_[strip, head] + rng.normal(0, 0.005, (6600, 3))
+    r = client.post("/v1/complete?format=ply", files={"points": ("relief.npy", _npy(pts))})
+    assert r.status_code == 200, r.text
+    used, plane, support = r.headers["x-symmetry"].split("; ")
+    assert used == "not mirrored (a sheet)" and abs(float(plane.removeprefix("plane x="))) < 0.05
+    assert float(support.removeprefix("support=")) >= 0.85            # its outline alone would pass
+
+
 def test_complete_and_classify_turn_a_z_up_upload_upright_and_the_completed_shape_back(client, clouds):
     from model.octree.geometry import to_y_up
 
