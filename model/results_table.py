@@ -18,9 +18,11 @@ value and are left out of its pairs; the table counts them.  Results of the fore
 
 from __future__ import annotations
 
+import gzip
 import json
 import os
 import sys
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -46,10 +48,12 @@ class PairedDifference:
 
 
 def load_results(path: str | Path) -> dict:
-    """An evaluation JSON with per-shape rows (ValueError if it is not one)."""
+    """An evaluation JSON with per-shape rows, or the same gzipped (``.json.gz``, as results are
+    kept in docs/results) (ValueError if it is not one)."""
     try:
-        res = json.loads(Path(path).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+        raw = Path(path).read_bytes()
+        res = json.loads(gzip.decompress(raw) if str(path).endswith(".gz") else raw)
+    except (OSError, EOFError, zlib.error, json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: not a readable results file ({type(exc).__name__})") from None
     if not isinstance(res, dict) or "per_shape" not in res:
         raise ValueError(f"{path}: no per-shape rows; evaluate again with python -m model.evaluate")
@@ -65,8 +69,14 @@ def load_joined(arg: str) -> dict:
     return join_results([load_results(p) for p in arg.split("+")])
 
 
+def _stem(path: str) -> str:
+    """A results file's name without ``.json`` or ``.json.gz``."""
+    name = Path(path).name
+    return name.removesuffix(".gz").removesuffix(".json")
+
+
 def _label(arg: str) -> str:
-    return "+".join(Path(p).stem for p in arg.split("+")) if not Path(arg).is_file() else Path(arg).stem
+    return _stem(arg) if Path(arg).is_file() else "+".join(_stem(p) for p in arg.split("+"))
 
 
 def markdown_table(results: list[dict], labels: list[str], metric: str = "chamfer_x1e3") -> str:

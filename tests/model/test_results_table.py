@@ -1,5 +1,6 @@
 """Comparing evaluation results: the table and the paired, stratified bootstrap."""
 
+import gzip
 import json
 
 import numpy as np
@@ -46,9 +47,16 @@ def test_table_and_command(tmp_path, capsys):
     assert main([str(pa), str(pb), "--bootstrap", "200"]) == 0
     out = capsys.readouterr().out
     assert "| b | +0.500 | [+0.500, +0.500] | 2 / 0 / 0 | 2 |" in out
+    pz = tmp_path / "b.json.gz"                          # as kept in docs/results
+    pz.write_bytes(gzip.compress(json.dumps(b).encode()))
+    assert main([str(pa), str(pz), "--bootstrap", "200"]) == 0
+    assert "| b | +0.500 | [+0.500, +0.500] | 2 / 0 / 0 | 2 |" in capsys.readouterr().out
     pb.write_text("{}")
     assert main([str(pa), str(pb)]) == 2
     assert "no per-shape rows" in capsys.readouterr().err
+    pz.write_bytes(b"\x1f\x8b not gzip")
+    assert main([str(pa), str(pz)]) == 2
+    assert "not a readable results file" in capsys.readouterr().err
 
 
 def test_completion_tables_end_with_the_partial_input_and_compare_the_missing_part(tmp_path, capsys):
