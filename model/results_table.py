@@ -1,6 +1,6 @@
 """Compare evaluation results: the Table 3 layout in Markdown, and paired per-shape differences.
 
-    python -m model.results_table BASE.json OTHER.json [...] [--bootstrap 10000] [--icp | --missing]
+    python -m model.results_table BASE.json OTHER.json [...] [--bootstrap 10000] [--icp] [--fscore | --missing]
     python -m model.results_table RESULT.json [...] --surfaces
 
 Every file is written by ``python -m model.evaluate`` on the same split; ``A.json+B.json`` joins
@@ -8,7 +8,8 @@ one model's results on several splits (the held-out seed's 780 shapes) into one.
 table, each result after the first is compared with the first shape by shape: the difference of
 category means with a 95% bootstrap interval (shapes resampled within categories) and how many
 shapes each side wins and how many tie, so that a gap can be told from test-set noise.  ``--icp`` compares the Chamfer distances after
-ICP alignment (results evaluated with ``--icp``); ``--missing`` compares completion's
+ICP alignment (results evaluated with ``--icp``); ``--fscore`` the F-score at 1% of the truth's
+diagonal instead (higher is better; after ICP with ``--icp``); ``--missing`` compares completion's
 missing-part distance.  ``--surfaces`` compares, within each result, the closed surface with the
 patches, both sampled by area (``model.evaluate`` measures both surfaces for the image and
 completion tasks).  Completion results get a last row: the partial input itself.  Shapes a model decoded to nothing have no
@@ -83,13 +84,15 @@ def markdown_table(results: list[dict], labels: list[str], metric: str = "chamfe
     """Per-category test means, category mean, empty outputs and mean octree sizes, one row per result."""
     for r in results:
         if metric not in r:
-            raise ValueError(f"{r.get('run', 'a result')} has no {metric}: evaluate it with --icp")
+            how = "with --icp" if "icp" in metric else "again (results evaluated before it was measured lack it)"
+            raise ValueError(f"{r.get('run', 'a result')} has no {metric}: evaluate it {how}")
     cats = sorted({row["category"] for r in results for row in r["per_shape"]})
     lines = ["| run | " + " | ".join(cats) + " | **mean** | empty outputs | decoded nodes | truth nodes |",
              "|---|" + "---|" * (len(cats) + 4)]
     for label, r in zip(labels, results):
         o = r["octree"]
-        cells = [f"{r[metric][c]:.2f}" if finite(r[metric].get(c)) else "—" for c in cats]
+        digits = 3 if "fscore" in metric else 2
+        cells = [f"{r[metric][c]:.{digits}f}" if finite(r[metric].get(c)) else "—" for c in cats]
         mean = r.get(f"{metric}_category_mean")
         mean_cell = f"**{mean:.3f}**" if finite(mean) else "—"
         decoded = f"{o['decoded_nodes']:.0f}" if finite(o.get("decoded_nodes")) else "—"
@@ -175,6 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = command_parser("python -m model.results_table", __doc__, [
         "python -m model.results_table aocnn.json ocnn-patch.json --bootstrap 10000",
         "python -m model.results_table img.json img-psg.json --icp",
+        "python -m model.results_table img.json img-atlasnet.json --icp --fscore",
         "python -m model.results_table image.json completion.json --surfaces",
         "python -m model.results_table base_test.json+base_val.json other_test.json+other_val.json --missing"])
     ap.add_argument("results", nargs="+",
@@ -182,6 +186,9 @@ def main(argv: list[str] | None = None) -> int:
                          "results of one model on several splits into one")
     ap.add_argument("--bootstrap", type=int, default=10_000, help="bootstrap draws for the intervals (default 10000)")
     ap.add_argument("--icp", action="store_true", help="compare the Chamfer distances after ICP alignment")
+    ap.add_argument("--fscore", action="store_true",
+                    help="compare the F-score at 1%% of the truth's diagonal (higher is better) instead of the "
+                         "Chamfer distance; with --icp after ICP alignment")
     ap.add_argument("--missing", action="store_true",
                     help="completion: compare the missing part's distance to the output instead of the Chamfer distance")
     ap.add_argument("--surfaces", action="store_true",
@@ -193,30 +200,32 @@ def main(argv: list[str] | None = None) -> int:
         results = [load_joined(p) for p in args.results]
         labels = [_label(p) + (f" (oracle {r['oracle']})" if r.get("oracle", "none") != "none" else "")
                   for r, p in zip(results, args.results)]
-        if args.icp + args.missing + args.surfaces > 1:
-            raise ValueError("give one of --icp, --missing and --surfaces")
+        if args.fscore + args.missing + args.surfaces > 1 or args.icp and (args.missing or args.surfaces):
+            raise ValueError("give one of --fscore, --missing and --surfaces (--icp goes with --fscore or alone)")
         if args.surfaces:
             print(surfaces_table(results, labels, args.bootstrap))
             return 0
         masks = [r.get("task") == "foreground" for r in results]
         if any(masks) and not all(masks):
             raise ValueError("foreground results (mask IoU) can only be compared with foreground results")
-        if all(masks) and (args.icp or args.missing):
-            raise ValueError("--icp and --missing go with shape results, not the foreground network's masks")
+        if all(masks) and (args.icp or args.missing or args.fscore):
+            raise ValueError("--icp, --fscore and --missing go with shape results, not the foreground network's masks")
         if all(masks):
             metric, what = "mask_iou", "mask IoU"
             print(mask_table(results, labels))
         else:
-            metric = "chamfer_icp_x1e3" if args.icp else "missing_x1e3" if args.missing else "chamfer_x1e3"
-            what = ("Chamfer x1e3 after ICP" if args.icp else "missing part's distance x1e3" if args.missing
-                    else "Chamfer x1e3")
+            metric = (("fscore" if args.fscore else "chamfer") + ("_icp" if args.icp else "") +
+                      ("" if args.fscore else "_x1e3")) if not args.missing else "missing_x1e3"
+            what = ("missing part's distance x1e3" if args.missing else
+                    ("F-score at 1% of the diagonal" if args.fscore else "Chamfer x1e3") +
+                    (" after ICP" if args.icp else ""))
             print(markdown_table(results, labels, metric))
         if len(results) > 1:
             print(f"\nPaired against {labels[0]} (other − base, {what} category mean, 95% bootstrap):")
             print("| run | difference | 95% interval | base better / other better / tie | shapes |\n|---|---|---|---|---|")
             for label, r in zip(labels[1:], results[1:]):
                 d = paired_difference(results[0], r, args.bootstrap, metric=metric,
-                                      higher_is_better=all(masks))
+                                      higher_is_better=all(masks) or args.fscore)
                 print(f"| {label} | {d.mean:+.3f} | [{d.low:+.3f}, {d.high:+.3f}] | "
                       f"{d.base_wins} / {d.other_wins} / {d.ties} | {d.shapes} |")
     except ValueError as exc:

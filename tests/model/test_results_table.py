@@ -131,3 +131,28 @@ def test_foreground_results_are_compared_by_mask_iou_where_higher_wins(tmp_path,
     pc.write_text(json.dumps(results({"chair": [1.0]})))
     assert main([str(pa), str(pc)]) == 2
     assert "only be compared with foreground results" in capsys.readouterr().err
+
+
+def test_fscore_compares_the_f_score_where_higher_wins_and_needs_results_that_hold_it(tmp_path, capsys):
+    a, b = results({"car": [1.0, 2.0]}), results({"car": [3.0, 4.0]}, arch="atlasnet")
+    for r, served, aligned in zip(a["per_shape"] + b["per_shape"], (0.6, 0.2, 0.5, 0.3), (0.7, 0.2, 0.5, 0.4)):
+        r.update(fscore=served, fscore_icp=aligned)
+    a.update(fscore={"car": 0.4}, fscore_category_mean=0.4, fscore_icp={"car": 0.45}, fscore_icp_category_mean=0.45)
+    b.update(fscore={"car": 0.4}, fscore_category_mean=0.4, fscore_icp={"car": 0.45}, fscore_icp_category_mean=0.45)
+    pa, pb = tmp_path / "a.json", tmp_path / "b.json"
+    pa.write_text(json.dumps(a))
+    pb.write_text(json.dumps(b))
+    assert main([str(pa), str(pb), "--fscore", "--bootstrap", "200"]) == 0
+    out = capsys.readouterr().out
+    # per shape b - a: -0.1 and +0.1: one win each, though b is worse by Chamfer on both
+    assert "| a | 0.400 | **0.400** |" in out and "F-score at 1% of the diagonal category mean" in out
+    assert "| b | +0.000 |" in out and "| 1 / 1 / 0 | 2 |" in out
+    assert main([str(pa), str(pb), "--fscore", "--icp", "--bootstrap", "200"]) == 0
+    out = capsys.readouterr().out
+    # after ICP: -0.2 and +0.2; a higher F-score on b's second shape counts as b's win
+    assert "F-score at 1% of the diagonal after ICP" in out and "| b | +0.000 | [-0.200, +0.200] | 1 / 1 / 0 | 2 |" in out
+    assert main([str(pa), str(pb), "--fscore", "--missing"]) == 2
+    old = results({"car": [1.0, 2.0]})                    # evaluated before every output had an F-score
+    pb.write_text(json.dumps(old))
+    assert main([str(pa), str(pb), "--fscore"]) == 2
+    assert "has no fscore: evaluate it again" in capsys.readouterr().err

@@ -238,7 +238,13 @@ def test_image_training_resumes_and_evaluates_to_a_well_formed_table(tiny_data, 
     assert len(valued) + res["empty_outputs"] == 4       # 6 steps may decode nothing: counted, not inf
     for r in valued:
         assert 0 < r["chamfer_icp_x1e3"] <= r["chamfer_x1e3"]
+        assert 0 <= r["fscore"] <= 1 and 0 <= r["fscore_icp"] <= 1     # every decoder gets an F-score
+        if r["chamfer_icp_x1e3"] == r["chamfer_x1e3"]:                 # the alignment was not kept
+            assert r["fscore_icp"] == r["fscore"]
+    if valued:
+        assert 0 <= res["fscore_category_mean"] <= 1
     assert table_main([str(out), str(out), "--icp", "--bootstrap", "100"]) == (0 if valued else 2)
+    assert table_main([str(out), str(out), "--icp", "--fscore", "--bootstrap", "100"]) == (0 if valued else 2)
 
 
 def test_image_augmentation_is_a_function_of_seed_and_step(tiny_data, tmp_path):
