@@ -156,13 +156,12 @@ def fscore_threshold(truth: np.ndarray) -> float:
     return FSCORE_SHARE * float(np.linalg.norm(truth.max(0) - truth.min(0)))
 
 
-def surface_rows(sample, truth: Reference, tree: Octree, count: int, seed: int) -> dict:
-    """Chamfer (x1e3) and F-score of both surfaces of the decoded octree against the truth, and
-    whether the closed one is closed.  The surfaces are measured on
-    ``count`` points drawn uniformly at random by area (as many as ``pts``, at least 1,000): random
+def surface_rows(sample, truth: Reference, tree: Octree, count: int, seed: int, threshold: float) -> dict:
+    """Chamfer (x1e3) and F-score (at ``threshold``) of both surfaces of the decoded octree against
+    the truth, and whether the closed one is closed.  The surfaces are measured on ``count``
+    points drawn uniformly at random by area (as many as the output's, at least 1,000): random
     draws leave gaps that a stratified protocol does not, so only draws of the same kind compare
     the two surfaces (the patches are measured both ways)."""
-    threshold = fscore_threshold(truth.points)
     row = {}
     for kind in SURFACES:
         m = surface_mesh(tree, kind, world=False)
@@ -349,7 +348,7 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
                     row["chamfer_icp_x1e3"] = moved.chamfer() * 1e3 if better else row["chamfer_x1e3"]
                     row["fscore_icp"] = moved.fscore(threshold) if better else row["fscore"]
                 if surfaces:
-                    row.update(surface_rows(sample, truth, tree, max(len(pts), 1000), seed))
+                    row.update(surface_rows(sample, truth, tree, max(len(pts), 1000), seed, threshold))
             else:
                 empty += 1
                 row.update({m: None for m in metrics if m != "mask_iou"})
