@@ -214,8 +214,8 @@ def main(argv: list[str] | None = None) -> int:
             metric, what = "mask_iou", "mask IoU"
             print(mask_table(results, labels))
         else:
-            metric = (("fscore" if args.fscore else "chamfer") + ("_icp" if args.icp else "") +
-                      ("" if args.fscore else "_x1e3")) if not args.missing else "missing_x1e3"
+            metric = "missing_x1e3" if args.missing else {(False, False): "chamfer_x1e3", (True, False): "chamfer_icp_x1e3",
+                                                         (False, True): "fscore", (True, True): "fscore_icp"}[args.icp, args.fscore]
             what = ("missing part's distance x1e3" if args.missing else
                     ("F-score at 1% of the diagonal" if args.fscore else "Chamfer x1e3") +
                     (" after ICP" if args.icp else ""))
