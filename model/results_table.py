@@ -31,6 +31,10 @@ import numpy as np
 from .cli import command_parser
 from .results import finite, join_results
 
+# The per-shape measure compared, by (--fscore, --icp): the keys model.evaluate writes.
+COMPARED = {(False, False): "chamfer_x1e3", (False, True): "chamfer_icp_x1e3",
+            (True, False): "fscore", (True, True): "fscore_icp"}
+
 
 @dataclass
 class PairedDifference:
@@ -214,8 +218,7 @@ def main(argv: list[str] | None = None) -> int:
             metric, what = "mask_iou", "mask IoU"
             print(mask_table(results, labels))
         else:
-            metric = "missing_x1e3" if args.missing else {(False, False): "chamfer_x1e3", (True, False): "chamfer_icp_x1e3",
-                                                         (False, True): "fscore", (True, True): "fscore_icp"}[args.icp, args.fscore]
+            metric = "missing_x1e3" if args.missing else COMPARED[args.fscore, args.icp]
             what = ("missing part's distance x1e3" if args.missing else
                     ("F-score at 1% of the diagonal" if args.fscore else "Chamfer x1e3") +
                     (" after ICP" if args.icp else ""))
