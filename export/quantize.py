@@ -60,10 +60,12 @@ def quantize(bundle_dir: str | Path, out: str | Path, group: str = "all") -> lis
     return done
 
 
-def quantize_static_graph(model: bytes, calibration: list[dict[str, np.ndarray]]) -> bytes:
+def quantize_static_graph(model: bytes, calibration: list[dict[str, np.ndarray]], reduce_range: bool = False,
+                          signed_weights: bool = True) -> bytes:
     """The graph ``model`` statically quantised to int8 in QDQ form: weights signed int8 per output
-    channel, activations unsigned int8 with ranges (min-max) observed on the ``calibration`` input
-    feeds.  onnxruntime's CPU provider runs the quantised convolutions as int8 kernels."""
+    channel (``reduce_range``: 7 bits; ``signed_weights`` False: unsigned), activations unsigned int8
+    with ranges (min-max) observed on the ``calibration`` input feeds.  onnxruntime's CPU provider
+    runs the quantised convolutions as int8 kernels."""
     from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
 
     if not calibration:
@@ -83,10 +85,29 @@ def quantize_static_graph(model: bytes, calibration: list[dict[str, np.ndarray]]
         logging.disable(logging.WARNING)      # its advice to pre-process (shape inference; BN is already folded)
         try:
             quantize_static(src, dst, Feeds(), quant_format=QuantFormat.QDQ, per_channel=True,
-                            activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8)
+                            reduce_range=reduce_range, activation_type=QuantType.QUInt8,
+                            weight_type=QuantType.QInt8 if signed_weights else QuantType.QUInt8)
         finally:
             logging.disable(previous)
         return dst.read_bytes()
+
+
+def output_range(model: bytes, output: str) -> tuple[float, float, float]:
+    """(step, lowest, highest): the quantisation step of a QDQ graph's float ``output`` and the
+    range its int8 values can express (the DequantizeLinear that gives it); BundleError when the
+    output is not dequantised from int8."""
+    import onnx
+    from onnx import numpy_helper
+
+    graph = onnx.load_from_string(model).graph
+    init = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
+    node = next((n for n in graph.node if output in n.output), None)
+    if node is None or node.op_type != "DequantizeLinear" or node.input[1] not in init:
+        raise BundleError(f"the graph's output {output!r} is not dequantised from int8")
+    scale = float(init[node.input[1]])
+    zero = init[node.input[2]] if len(node.input) > 2 and node.input[2] in init else np.zeros((), np.uint8)
+    info = np.iinfo(zero.dtype)
+    return scale, scale * (info.min - float(zero)), scale * (info.max - float(zero))
 
 
 def main(argv: list[str] | None = None) -> int:

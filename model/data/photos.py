@@ -362,9 +362,9 @@ def photo_split_view(images: np.ndarray, shape_id: str) -> Photo:
 
 
 def generated_photos(per_category: int = 2, views: int = 2, seed: int = 0,
-                     style: PhotoStyle = PhotoStyle(scenes=FIRST_SCENES)) -> list[Photo]:
-    """Training-like photos without a dataset: the generator's first ``per_category`` training
-    shapes of every category (dataset seed 0), each rendered from ``views`` random viewpoints as
+                     style: PhotoStyle = PhotoStyle(scenes=FIRST_SCENES), split: str = "train") -> list[Photo]:
+    """Training-like photos without a dataset: the generator's first ``per_category`` shapes of
+    ``split`` in every category (dataset seed 0), each rendered from ``views`` random viewpoints as
     the dataset renders them and composited on training backgrounds in ``style``, all drawn from
     ``seed``.  What the export calibrates a quantised foreground network with (by default on the
     scenes the shipped network was trained on, so that its int8 graph is made again bit for bit)."""
@@ -374,7 +374,7 @@ def generated_photos(per_category: int = 2, views: int = 2, seed: int = 0,
     rng = np.random.default_rng(seed)
     photos = []
     for category in CATEGORIES:
-        indices = (i for i in range(10 ** 6) if split_of(category, i) == "train")
+        indices = (i for i in range(10 ** 6) if split_of(category, i) == split)
         for _, index in zip(range(per_category), indices):
             images, _ = render_views(generate(category, index), n_views=views, rng=rng)
             photos += [photo_composite(image, rng, "train", style) for image in images]

@@ -11,7 +11,7 @@ import pytest
 import torch
 import trimesh
 
-from export.exporter import probe_octrees
+from export.parity import probe_octrees
 from model.data.shapes import generate
 from model.decode import decode
 from model.networks import TorchSteps

@@ -292,8 +292,12 @@ def test_a_students_teacher_codes_are_kept_with_the_run_and_read_back_on_resume(
 
 def test_teacher_codes_interrupted_go_on_from_their_last_saved_part(tiny_data, tmp_path, monkeypatch):
     """The codes are saved in parts as they are made: a run stopped while making them keeps the
-    parts it finished, and the next start computes only the rest, joining the same codes."""
+    parts it finished, and the next start computes only the rest, joining the same codes.  The
+    work done is checked exactly (which parts were made, which read); the codes within float
+    rounding, since parts of 8 shapes batch the encoder differently from parts of 512, and
+    kernels may sum a batch in another order."""
     import model.train.tasks as tasks
+    from export.parity import RELATIVE_TOLERANCE, relative_error
 
     _, kw = _teacher_and_student(tiny_data, tmp_path, 2, 2)
     whole = Trainer(config(tiny_data, tmp_path / "whole", **kw)).train_set.latents
@@ -316,9 +320,11 @@ def test_teacher_codes_interrupted_go_on_from_their_last_saved_part(tiny_data, t
     parts = sorted((tmp_path / "img" / "teacher-codes").glob("train-*/*.pt"))
     n = len(whole)
     assert [p.name for p in parts] == ["000000.pt"] and made == [(n, 0)]
+    saved = torch.load(parts[0])
     resumed = Trainer(config(tiny_data, tmp_path / "img", **kw)).train_set.latents
     assert [m for m in made if m[0] == n] == [(n, 0), (n, 8), (n, 16)]  # the first part read, not made again
-    assert torch.equal(resumed, whole)
+    assert relative_error(whole, resumed) <= RELATIVE_TOLERANCE                 # the same codes, to rounding
+    assert torch.equal(resumed[:len(saved)], saved)                     # the saved part, read back as it was
     assert not list((tmp_path / "img" / "teacher-codes").glob("train-*/"))    # joined, parts removed
 
 

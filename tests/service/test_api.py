@@ -298,11 +298,19 @@ def test_classify_returns_the_models_top_categories_with_and_without_the_12_rota
         assert {"decode_input", "octree_build", "encoder"} <= {t.split(";")[0] for t in r.headers["server-timing"].split(", ")}
         per_rotation = _torch_probabilities(model, pts, normals, cfg.depth, rotations)
         want, votes = per_rotation.mean(0), np.bincount(per_rotation.argmax(1), minlength=len(cfg.categories))
-        order = np.argsort(-want)[:2]
         assert body["rotations"] == rotations
-        assert [t["category"] for t in body["top"]] == [cfg.categories[i] for i in order]
-        assert np.allclose([t["probability"] for t in body["top"]], want[order], atol=1e-4)
-        assert [t["votes"] for t in body["top"]] == votes[order].tolist()
+        got = {t["category"]: t for t in body["top"]}
+        probabilities = [t["probability"] for t in body["top"]]
+        assert probabilities == sorted(probabilities, reverse=True)
+        assert all(abs(t["probability"] - want[cfg.categories.index(c)]) <= 1e-4 for c, t in got.items())
+        # which category ranks higher, or takes a rotation's vote, is torch's unless the two are
+        # within rounding (another CPU's kernels may break such a tie the other way)
+        top = np.sort(per_rotation, 1)
+        if float((top[:, -1] - top[:, -2]).min()) > 1e-4:
+            assert all(t["votes"] == votes[cfg.categories.index(c)] for c, t in got.items())
+        ranked = np.sort(want)[::-1]
+        if ranked[1] - ranked[2] > 1e-4:
+            assert set(got) == {cfg.categories[i] for i in np.argsort(-want)[:2]}
     every = client.post("/v1/classify?top_k=50&vote=true", files={"shape": ("s.npz", data)}).json()["top"]
     assert sorted(t["category"] for t in every) == sorted(cfg.categories)
     assert sum(t["votes"] for t in every) == 12
@@ -322,18 +330,18 @@ def test_classify_and_complete_answer_503_without_their_bundles(models_dir, tmp_
 
 def test_complete_builds_the_training_input_octree_with_and_without_normals(client, exported, clouds):
     """The service's completion input is :func:`scan_octree` of the upload (normals estimated when
-    absent), exactly the octrees the model was trained on, and the output is in the scan's frame."""
-    import torch
-
-    from model.decode import decode
-    from model.networks import TorchSteps
-    from model.nn.tensors import OctreeTensors
+    absent), exactly the octrees the model was trained on, and the output is in the scan's frame.
+    The expected answer is the bundle's own decode of that octree (its graphs are torch's, step by
+    step: tests/export; a whole decode of a random decoder is not comparable across runtimes)."""
+    from export.bundle import load_bundle
+    from export.runtime import Runtime
     from model.octree import scan_frame, scan_octree, validate
     from model.octree.batch import split_octree
     from model.octree.fuse import keep_scan
     from model.octree.symmetry import symmetrize
 
-    model, cfg, _ = exported("completion-aocnn")
+    _, cfg, folder = exported("completion-aocnn")
+    runtime = Runtime(load_bundle(folder), threads=1)
     pts = partial_cloud(clouds)[::4]
     normals = clouds[-1][1][clouds[-1][0][:, 0] < np.quantile(clouds[-1][0][:, 0], 0.7)][::4]
     for name, data, given in (("scan.npz", _npz(pts, normals), normals), ("scan.npy", _npy(pts), None)):
@@ -342,9 +350,7 @@ def test_complete_builds_the_training_input_octree_with_and_without_normals(clie
             if symmetry:
                 cloud, mirror = symmetrize(cloud)
             tree = scan_octree(cloud, cfg.depth)
-            with torch.no_grad():
-                latent = model.encoder(OctreeTensors.from_octree(tree)).numpy()
-            out = split_octree(decode(TorchSteps(model.decoder), latent), neighbors=False)[0]
+            out = split_octree(runtime.decode(runtime.encode_octree(tree)), neighbors=False)[0]
             out.normalizations = [scan_frame(cloud.points)]
             for query, want_tree in (("", keep_scan(out, tree)), ("&keep_scan=false", out)):   # the default first
                 query += "" if symmetry else "&symmetry=false"

@@ -77,13 +77,15 @@ def test_a_guided_completion_answers_each_scan_with_its_own_features_batched_or_
                                                                                   tmp_path):
     """A guided completion bundle (output-guided skip connections) batches scans: the decode of
     each group (keep_scan true / false) reads only its own shapes' encoder features, so batched
-    answers equal single ones and torch's decode with the same scan."""
+    answers equal single ones and the bundle's own decode of the scan, whose graphs are torch's."""
     import shutil
 
     import numpy as np
     import torch
 
-    from model.decode import decode
+    from export.bundle import load_bundle
+    from export.parity import decoder_parity
+    from export.runtime import Runtime
     from model.networks import TorchSteps
     from model.octree import scan_octree, validate
     from model.octree.batch import split_octree
@@ -99,9 +101,17 @@ def test_a_guided_completion_answers_each_scan_with_its_own_features_batched_or_
     scans = [base, base[base[:, 1] < np.quantile(base[:, 1], 0.8)], base[::2] * 1.5 + 0.3]
     queries = ["keep_scan=false", "keep_scan=true", "keep_scan=false"]
     tree = scan_octree(validate(scans[0], None), cfg.depth)
+    runtime = Runtime(load_bundle(bundle), threads=1)
+    latent, guide = runtime.encode_scan(tree)
+    own = split_octree(runtime.decode(latent, guide=guide), neighbors=False)[0]
+    # the graphs are torch's, step by step with each one's own encoder features (a random decoder
+    # has near-tied statuses: whole decodes may differ on another CPU while every graph agrees)
     with torch.no_grad():
-        latent, guide = model.encode_octree(tree)
-    own = split_octree(decode(TorchSteps(model.decoder), latent.numpy(), guide=guide), neighbors=False)[0]
+        latent_t, guide_t = model.encode_octree(tree)
+    dec = model.decoder
+    report, _ = decoder_parity(TorchSteps(dec), runtime.steps(), latent_t.numpy(), dec.full_depth, dec.adaptive_depth,
+                               other_latent=latent, guides=(guide_t, guide))
+    assert report.ok, report.summary()
     with make_client(root) as single:
         want = [single.post(f"/v1/complete?format=ply&{q}", files={"points": ("s.npy", _npy(s))})
                 for s, q in zip(scans, queries)]
