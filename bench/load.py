@@ -13,6 +13,7 @@ spent outside the model (1 - (encoder + decoder) / latency, from the Server-Timi
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import socket
@@ -20,6 +21,7 @@ import statistics
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import httpx2 as httpx
@@ -33,6 +35,33 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+@contextlib.contextmanager
+def serve(models_dir: str | None = None, env: dict[str, str] | None = None) -> Iterator[tuple[str, int]]:
+    """``python -m service`` on a free port of 127.0.0.1 (the bundled models unless ``models_dir``;
+    ``env``: AOCNN_* settings), ready (/readyz); yields its base URL and process id, and stops it."""
+    port = _free_port()
+    env = {**os.environ, **(env or {}), "AOCNN_PORT": str(port)}
+    if models_dir:
+        env["AOCNN_MODELS_DIR"] = models_dir
+    server = subprocess.Popen([sys.executable, "-m", "service"], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.PIPE)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        for _ in range(240):
+            try:
+                if httpx.get(f"{base}/readyz", timeout=1).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            if server.poll() is not None:
+                raise RuntimeError(f"the service stopped: {server.stderr.read().decode()}")
+            time.sleep(0.5)
+        yield base, server.pid
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
 
 
 def _rss_mb(pid: int) -> float:
@@ -101,31 +130,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--env", nargs="*", default=[], help="AOCNN_*=value settings for the server (default: none)")
     ap.add_argument("--json", default=None, help="also write the figures here (default: none)")
     args = ap.parse_args(argv)
-    port = _free_port()
-    env = {**os.environ, **dict(e.split("=", 1) for e in args.env), "AOCNN_PORT": str(port)}
-    if args.models_dir:
-        env["AOCNN_MODELS_DIR"] = args.models_dir
-    server = subprocess.Popen([sys.executable, "-m", "service"], env=env, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.PIPE)
-    base = f"http://127.0.0.1:{port}"
-    try:
-        for _ in range(120):
-            try:
-                if httpx.get(f"{base}/readyz", timeout=1).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            if server.poll() is not None:
-                print(server.stderr.read().decode(), file=sys.stderr)
-                return 1
-            time.sleep(0.5)
+    env = dict(e.split("=", 1) for e in args.env)
+    with serve(args.models_dir, env) as (base, pid):
         data = Path(args.input).read_bytes()
         url = f"{base}/v1/{args.endpoint}" + (f"?{args.query}" if args.query else "")
         rows = [asyncio.run(_run(url, FIELDS[args.endpoint], data, Path(args.input).name,
-                                 c, args.seconds, server.pid)) for c in args.concurrency]
-    finally:
-        server.terminate()
-        server.wait(timeout=30)
+                                 c, args.seconds, pid)) for c in args.concurrency]
     print(f"{args.endpoint}?{args.query}, {args.input}, {args.seconds:g} s per level, server env {args.env or 'defaults'}")
     print(f"{'conc':>4} {'req':>6} {'err':>4} {'rps':>7} {'p50 ms':>8} {'p95 ms':>8} {'p99 ms':>8} "
           f"{'outside model':>13} {'RSS start/end/max MB':>22}")

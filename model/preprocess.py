@@ -308,7 +308,11 @@ class MaskSpec:
     (:func:`guided_filter`, with the regulariser ``guide_eps``; 0: none, the mask is resized;
     on the 128² grid the radius is rounded to whole pixels), which brings back the edges and thin
     parts that the network's 128² loses; chosen on the validation split by ``python -m
-    model.calibrate --mask-guide``."""
+    model.calibrate --mask-guide``.  ``crop_size``: the refinement network's input side (0: none):
+    after the first mask, the object's square (its box's longest side grown by ``crop_margin`` on
+    each side) is segmented again at ``crop_size``² with the first mask as a fourth channel
+    (:func:`crop_input`), so that a thin part several photo pixels wide is several network pixels
+    wide, and the refined mask replaces the first."""
 
     size: int = 128
     mean: tuple[float, float, float] = (0.5, 0.5, 0.5)
@@ -320,6 +324,8 @@ class MaskSpec:
     refine_min: int | None = None
     guide: float = 0.0
     guide_eps: float = 1e-4
+    crop_size: int = 0
+    crop_margin: float = 0.1
 
     @property
     def refine_side(self) -> int:
@@ -339,14 +345,26 @@ def _spec_from_dict(cls, d: dict):
     return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
 
 
-def mask_input(rgb: np.ndarray, spec: MaskSpec) -> np.ndarray:
-    """The foreground network's input (3, size, size) float32 of an (H, W, 3) uint8 image."""
+def mask_input(rgb: np.ndarray, spec: MaskSpec, size: int | None = None) -> np.ndarray:
+    """The foreground network's input (3, size, size) float32 of an (H, W, 3) uint8 image
+    (``size``: default ``spec.size``), stretched to the square: box-filtered down, bilinear up."""
+    size = spec.size if size is None else size
     img = Image.fromarray(np.ascontiguousarray(rgb[..., :3]), "RGB")
-    small = min(img.width, img.height) >= spec.size
-    img = img.resize((spec.size, spec.size), Image.Resampling.BOX if small else Image.Resampling.BILINEAR)
+    small = min(img.width, img.height) >= size
+    img = img.resize((size, size), Image.Resampling.BOX if small else Image.Resampling.BILINEAR)
     x = np.asarray(img, np.float32) / 255.0
     x = (x - np.asarray(spec.mean, np.float32)) / np.asarray(spec.std, np.float32)
     return np.ascontiguousarray(x.transpose(2, 0, 1))
+
+
+def crop_input(rgb: np.ndarray, first: np.ndarray, square: tuple[int, int, int, int], spec: MaskSpec) -> np.ndarray:
+    """The refinement network's input (4, crop_size, crop_size) float32: the ``square`` (y0, y1,
+    x0, x1, exclusive) of ``rgb`` (H, W, 3) uint8 as :func:`mask_input` makes it, and the first
+    mask ``first`` (H, W) in [0, 1] over the same square, resized alike, as 2 p - 1."""
+    y0, y1, x0, x1 = square
+    size = spec.crop_size
+    prior = resize_mask(np.asarray(first[y0:y1, x0:x1], np.float32), size, size)
+    return np.concatenate([mask_input(rgb[y0:y1, x0:x1], spec, size), (2 * np.clip(prior, 0, 1) - 1)[None]])
 
 
 def resize_mask(mask: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -462,14 +480,17 @@ def refine_square(box: tuple[int, int, int, int], height: int, width: int,
     return None if (y1 - y0) * (x1 - x0) >= spec.refine * height * width else (y0, y1, x0, x1)
 
 
-def object_mask(rgb: np.ndarray, segment, spec: MaskSpec) -> np.ndarray:
+def object_mask(rgb: np.ndarray, segment, spec: MaskSpec, refine=None) -> np.ndarray:
     """(H, W) float32 object mask of an opaque image from ``segment`` (the foreground network: an
     (h, w, 3) uint8 image to its object probability on a grid over the whole image, the network's
     ``spec.size`` square or the image's own pixels), brought to the image (:func:`to_image`: the
     guided filter of ``spec``), specks removed (:func:`clean_mask`; NoObjectError when nothing is
     left); a small object in a large photo is segmented again in its square (see
     :class:`MaskSpec`), the second mask replacing the first there and clearing it elsewhere
-    (unless it finds nothing: then the first stands)."""
+    (unless it finds nothing: then the first stands).  ``refine`` (the refinement network: a
+    (4, crop_size, crop_size) :func:`crop_input` to its object probability on that grid), when
+    given and ``spec.crop_size`` is set, then segments the object's square once more
+    (:func:`refined_mask`)."""
     h, w = rgb.shape[:2]
 
     def look(image: np.ndarray) -> np.ndarray:
@@ -477,16 +498,34 @@ def object_mask(rgb: np.ndarray, segment, spec: MaskSpec) -> np.ndarray:
 
     mask = clean_mask(look(rgb), spec)
     square = refine_square(mask_bounds(mask > 0.5), h, w, spec)
-    if square is None or min(square[1] - square[0], square[3] - square[2]) < spec.refine_side:
+    if square is not None and min(square[1] - square[0], square[3] - square[2]) >= spec.refine_side:
+        y0, y1, x0, x1 = square
+        try:
+            part = clean_mask(look(np.ascontiguousarray(rgb[y0:y1, x0:x1])), spec, h * w)
+            mask = np.zeros_like(mask)
+            mask[y0:y1, x0:x1] = part
+        except NoObjectError:            # the closer look lost the object: keep the first look's mask
+            pass
+    if refine is None or not spec.crop_size:
         return mask
-    y0, y1, x0, x1 = square
+    return refined_mask(rgb, mask, refine, spec)
+
+
+def refined_mask(rgb: np.ndarray, first: np.ndarray, refine, spec: MaskSpec) -> np.ndarray:
+    """The first mask ``first`` (H, W) of ``rgb`` refined: the object's square (:func:`object_square`
+    with ``spec.crop_margin``) segmented by ``refine`` from :func:`crop_input`, its probability
+    resized to the square (bilinear) and cleaned (:func:`clean_mask`), replacing the first mask
+    there and clearing it elsewhere; the first mask when the refinement finds nothing."""
+    h, w = rgb.shape[:2]
+    y0, y1, x0, x1 = square = object_square(mask_bounds(first > 0.5), h, w, spec.crop_margin)
+    p = np.asarray(refine(crop_input(rgb, first, square, spec)), np.float32)
     try:
-        part = clean_mask(look(np.ascontiguousarray(rgb[y0:y1, x0:x1])), spec, h * w)
-    except NoObjectError:                # the closer look lost the object: keep the first look's mask
-        return mask
-    fine = np.zeros_like(mask)
-    fine[y0:y1, x0:x1] = part
-    return fine
+        part = clean_mask(np.clip(resize_mask(p, y1 - y0, x1 - x0), 0, 1), spec, h * w)
+    except NoObjectError:
+        return first
+    out = np.zeros_like(first)
+    out[y0:y1, x0:x1] = part
+    return out
 
 
 def mask_iou(ours: np.ndarray, truth: np.ndarray) -> float:

@@ -6,8 +6,9 @@ stages, each two 3x3 convolutions with batch norm and ReLU, halving the resoluti
 of the same resolution and applies two more convolutions; a 1x1 convolution to one logit per pixel.
 Widths double per stage from ``width``, capped at 8 x ``width``.  :class:`LiteForegroundNet` is
 the same design with its work moved to coarser resolutions.  Input: (B, 3, S, S) images normalised
-as :func:`model.preprocess.mask_input` makes them (S divisible by the network's ``divisor``);
-output: (B, 1, S, S) logits of "object".
+as :func:`model.preprocess.mask_input` makes them (S divisible by the network's ``divisor``), or
+with ``in_channels=4`` the refinement network's (B, 4, S, S) crops with the first mask
+(:func:`model.preprocess.crop_input`); output: (B, 1, S, S) logits of "object".
 """
 
 from __future__ import annotations
@@ -48,13 +49,13 @@ class ForegroundNet(nn.Module):
 
     divisor = 16
 
-    def __init__(self, width: int = 8, levels: int = 5):
+    def __init__(self, width: int = 8, levels: int = 5, in_channels: int = 3):
         super().__init__()
         if width < 1 or levels < 2:
             raise ValueError(f"the foreground network needs width >= 1 and levels >= 2, got {width}, {levels}")
         widths = [min(width * 2 ** i, width * 8) for i in range(levels)]
         self.levels = levels
-        self.down = nn.ModuleList([_block(3, widths[0])] +
+        self.down = nn.ModuleList([_block(in_channels, widths[0])] +
                                   [_block(widths[i - 1], widths[i], 2) for i in range(1, levels)])
         self.up = nn.ModuleList([_block(widths[i + 1] + widths[i], widths[i]) for i in range(levels - 1)])
         self.head = nn.Conv2d(widths[0], 1, 1)
@@ -80,13 +81,13 @@ class LiteForegroundNet(nn.Module):
 
     divisor = 32
 
-    def __init__(self, width: int = 16):
+    def __init__(self, width: int = 16, in_channels: int = 3):
         super().__init__()
         if width < 2:
             raise ValueError(f"the light foreground network needs width >= 2, got {width}")
         enc = [width // 2, width, 2 * width, 4 * width, 8 * width, 8 * width]
         dec = [width // 2, width, 2 * width, 2 * width, 4 * width]
-        self.stem = _conv(3, enc[0])
+        self.stem = _conv(in_channels, enc[0])
         self.down = nn.ModuleList([nn.Sequential(_conv(enc[i - 1], enc[i], 2), _conv(enc[i], enc[i]))
                                    for i in range(1, len(enc))])
         ups = dec[1:] + enc[-1:]                    # what reaches decoder stage i from below
@@ -108,14 +109,16 @@ FOREGROUND_ARCHS = {"unet": ForegroundNet, "unet-lite": LiteForegroundNet}
 
 
 def mask_losses(logits: torch.Tensor, masks: torch.Tensor, skeletons: torch.Tensor | None = None,
-                skeleton_weight: float = 0.0) -> dict[str, torch.Tensor]:
+                skeleton_weight: float = 0.0, thin: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
     """Binary cross-entropy plus soft Dice (``total``), and the batch's IoU at 0.5 (``iou``,
     reported, not trained): ``masks`` (B, 1, S, S) coverage in [0, 1].  With ``skeletons`` (B, 1,
     S, S) in {0, 1}, the masks' tubed skeletons (:func:`model.train.foreground.tubed_skeletons`),
     also the skeleton recall loss (Kirchhoff et al., ECCV 2024), ``1 -`` the share of each
     skeleton the soft mask covers, averaged over the images that have one (``skeleton``; added to
     ``total`` times ``skeleton_weight``): a leg or a wing's edge lost costs as much as the body's
-    middle, whatever its area."""
+    middle, whatever its area.  With ``thin`` (B, 1, S, S) in {0, 1}, the masks' thin parts
+    (:func:`model.train.foreground.thin_parts`), also their recall at 0.5 (``thin_recall``,
+    reported, over the batch's thin pixels)."""
     bce = F.binary_cross_entropy_with_logits(logits, masks)
     p = torch.sigmoid(logits)
     inter = (p * masks).sum(dim=(1, 2, 3))
@@ -124,6 +127,9 @@ def mask_losses(logits: torch.Tensor, masks: torch.Tensor, skeletons: torch.Tens
         hard, truth = logits > 0, masks > 0.5
         iou = ((hard & truth).sum(dim=(1, 2, 3)).float() + 1e-6) / ((hard | truth).sum(dim=(1, 2, 3)).float() + 1e-6)
     out = {"total": bce + dice.mean(), "bce": bce, "dice": dice.mean(), "iou": iou.mean()}
+    if thin is not None:
+        with torch.no_grad():
+            out["thin_recall"] = ((logits > 0).to(thin.dtype) * thin).sum() / thin.sum().clamp(min=1)
     if skeletons is not None:
         length = skeletons.sum(dim=(1, 2, 3))
         recall = (p * skeletons).sum(dim=(1, 2, 3)) / length.clamp(min=1)
@@ -134,14 +140,14 @@ def mask_losses(logits: torch.Tensor, masks: torch.Tensor, skeletons: torch.Tens
 
 
 class ForegroundModel(nn.Module):
-    """The training wrapper: ``forward(images, masks[, skeletons])`` returns :func:`mask_losses`
-    (the skeleton recall term weighted by ``skeleton_weight``)."""
+    """The training wrapper: ``forward(images, masks[, skeletons[, thin]])`` returns
+    :func:`mask_losses` (the skeleton recall term weighted by ``skeleton_weight``)."""
 
-    def __init__(self, width: int = 8, skeleton_weight: float = 0.0, arch: str = "unet"):
+    def __init__(self, width: int = 8, skeleton_weight: float = 0.0, arch: str = "unet", in_channels: int = 3):
         super().__init__()
-        self.net = FOREGROUND_ARCHS[arch](width)
+        self.net = FOREGROUND_ARCHS[arch](width, in_channels=in_channels)
         self.skeleton_weight = skeleton_weight
 
-    def forward(self, images: torch.Tensor, masks: torch.Tensor,
-                skeletons: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        return mask_losses(self.net(images), masks, skeletons, self.skeleton_weight)
+    def forward(self, images: torch.Tensor, masks: torch.Tensor, skeletons: torch.Tensor | None = None,
+                thin: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        return mask_losses(self.net(images), masks, skeletons, self.skeleton_weight, thin)

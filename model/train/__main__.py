@@ -135,6 +135,20 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     f.add_argument("--image-size", type=int, default=128,
                    help="the network's input side: photos are resized to it (default 128, a multiple of 16; "
                         "of 32 for unet-lite)")
+    r = sub.add_parser("refine", parents=[common],
+                       help="train the foreground refinement network: the object's square of a photo segmented "
+                            "again at its own resolution, with the first network's mask as a fourth channel")
+    r.add_argument("--teacher", required=True,
+                   help="the first foreground network (a foreground run or checkpoint) whose served mask the "
+                        "refinement starts from")
+    r.add_argument("--arch", choices=tuple(FOREGROUND_ARCHS), default="unet-lite",
+                   help="unet-lite (default) or unet, as for the foreground network")
+    r.add_argument("--width", dest="encoder_width", type=int, default=16,
+                   help="the network's width (default 16)")
+    r.add_argument("--skeleton-weight", type=float, default=1.0,
+                   help="weight of the skeleton recall loss (default 1: thin parts count as much as the body)")
+    r.add_argument("--image-size", type=int, default=256,
+                   help="the side the object's square is resized to (default 256, a multiple of 32 for unet-lite)")
     c = sub.add_parser("completion", parents=[common],
                        help="train shape completion from partial scans (paper section 5.2)")
     c.add_argument("--arch", choices=COMPLETION_ARCHS, default="aocnn",

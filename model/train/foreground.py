@@ -8,6 +8,12 @@ to the network's resolution.  A share of the samples (``crop_share``) is what a 
 Validation draws one fixed composite per shape (training backgrounds; the held-out photographs
 are for the test split only).  A network trained for thin parts also gets each target's tubed
 skeleton (:func:`tubed_skeletons`) for the skeleton recall loss.
+
+The refinement network (:func:`refine_batch`) is trained on what it is served: larger photos
+(:data:`REFINE_STYLE`), the first network's mask of each (the served first stage,
+:func:`model.preprocess.object_mask`), and the object's square about that mask cut at its own
+resolution (:func:`model.preprocess.crop_input`), its target the exact mask over the same square;
+validation reports the recall of the thin parts (:func:`thin_parts`) apart.
 """
 
 from __future__ import annotations
@@ -17,9 +23,10 @@ import numpy as np
 from scipy import ndimage
 from skimage.morphology import skeletonize
 
-from ..data.photos import Photo, mask_box, photo_composite
+from ..data.photos import Photo, PhotoStyle, mask_box, photo_composite
 from ..data.shapes import stable_hash
-from ..preprocess import MaskSpec, mask_input, refine_square, resize_mask
+from ..preprocess import (MaskSpec, NoObjectError, crop_input, mask_bounds, mask_input, object_mask, object_square,
+                          refine_square, resize_mask)
 from .data import Sample
 
 BOX_ERROR = 0.1
@@ -73,3 +80,59 @@ def tubed_skeletons(masks: np.ndarray) -> np.ndarray:
         if m.any():
             out[i, 0] = ndimage.binary_dilation(skeletonize(m), cross) & m
     return out
+
+
+REFINE_STYLE = PhotoStyle(scale=(0.2, 0.95), short_side=(240, 800))
+"""The photos the refinement network trains on: the object up to 760 pixels across, so that a
+thin part of the render is several pixels wide in the photo, as in a user's photo."""
+THIN = 0.02
+"""A thin part: object pixels within this share of the object box's longest side of the
+background (a wing, a leg, a rail; and every object's rim)."""
+
+
+def thin_parts(masks: np.ndarray, boxes: list[tuple[int, int, int, int] | None] | None = None) -> np.ndarray:
+    """(B, 1, S, S) float32 in {0, 1}: the pixels of each target mask (coverage > 0.5) within
+    :data:`THIN` of its object box's longest side (``boxes``, default the mask's own) from the
+    background, by the Euclidean distance transform."""
+    out = np.zeros_like(masks, dtype=np.float32)
+    for i, m in enumerate(masks[:, 0] > 0.5):
+        box = mask_bounds(m) if boxes is None else boxes[i]
+        if box is not None and m.any():
+            side = max(box[2] - box[0], box[3] - box[1])
+            out[i, 0] = (ndimage.distance_transform_edt(np.pad(m, 1))[1:-1, 1:-1] <= max(1.0, THIN * side)) & m
+    return out
+
+
+def refine_sample(photo: Photo, first_look, first_spec: MaskSpec, spec: MaskSpec,
+                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """The refinement network's input (4, S, S) and target coverage (S, S) of one photo: the first
+    stage's mask (``first_look`` and ``first_spec``, as served; where it finds nothing, an empty
+    mask and the exact box with the errors of :data:`BOX_ERROR` tripled), the object's square
+    about it, each edge of its box moved by up to a third of :data:`BOX_ERROR`."""
+    h, w = photo.mask.shape
+    try:
+        first = object_mask(photo.rgb, first_look, first_spec)
+        box, error = mask_bounds(first > 0.5), BOX_ERROR / 3
+    except NoObjectError:
+        first, box, error = np.zeros((h, w), np.float32), photo.box or (0, 0, h, w), 3 * BOX_ERROR
+    top, left, bottom, right = box
+    moved = np.round(rng.uniform(-error, error, 4) * max(bottom - top, right - left)).astype(int)
+    top, left = int(np.clip(top + moved[0], 0, h - 1)), int(np.clip(left + moved[1], 0, w - 1))
+    box = (top, left, max(top + 1, min(h, bottom + int(moved[2]))), max(left + 1, min(w, right + int(moved[3]))))
+    y0, y1, x0, x1 = square = object_square(box, h, w, spec.crop_margin)
+    target = resize_mask(photo.mask[y0:y1, x0:x1], spec.crop_size, spec.crop_size)
+    return crop_input(photo.rgb, first, square, spec), np.clip(target, 0, 1)
+
+
+def refine_batch(samples: list[Sample], first_look, first_spec: MaskSpec, spec: MaskSpec,
+                 rng: np.random.Generator | None) -> tuple[np.ndarray, np.ndarray]:
+    """(B, 4, S, S) refinement inputs and (B, 1, S, S) target coverage of ``samples``, one
+    :data:`REFINE_STYLE` photo of a random view each (validation: fixed per shape)."""
+    size = spec.crop_size
+    images = np.empty((len(samples), 4, size, size), np.float32)
+    masks = np.empty((len(samples), 1, size, size), np.float32)
+    for i, s in enumerate(samples):
+        r = rng if rng is not None else np.random.default_rng(stable_hash("refine-val", s.shape_id))
+        photo = photo_composite(s.images[int(r.integers(len(s.images)))], r, "train", REFINE_STYLE)
+        images[i], masks[i, 0] = refine_sample(photo, first_look, first_spec, spec, r)
+    return images, masks

@@ -7,6 +7,7 @@ the same task for the latent codes of a batch.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import json
@@ -23,10 +24,10 @@ from ..decode import Guide, matched_rows
 from ..files import atomic_path
 from ..networks.decoder import STRUCTURE_LOSSES
 from ..nn.tensors import OctreeTensors
-from ..preprocess import ImageSpec, MaskSpec, prepare_image
+from ..preprocess import ImageSpec, MaskSpec, mask_input, mask_output, prepare_image
 from .config import TrainConfig, read_run
 from .data import RecordSet
-from .foreground import mask_batch, tubed_skeletons
+from .foreground import mask_batch, refine_batch, thin_parts, tubed_skeletons
 from .images import eval_view, image_batch
 
 
@@ -358,6 +359,54 @@ class ForegroundTask:
         raise ValueError("the foreground network has no latent code")
 
 
+class RefineTask(ForegroundTask):
+    """The foreground refinement network (a second look at the object's resolution): the object's
+    square of a photo, with the first network's mask as a fourth channel, in; the exact mask over
+    the square out (``cfg.image_size``: the square's side in the network, ``cfg.teacher``: the
+    first network, a foreground run or checkpoint, whose served mask is the input)."""
+
+    name = "refine"
+
+    def check(self, cfg: TrainConfig) -> None:
+        super().check(cfg)
+        if cfg.teacher is None:
+            raise ValueError("--teacher must name the first foreground network (a foreground run or checkpoint)")
+        _first_stage(cfg.teacher)                  # a foreground network, or ValueError
+
+    def spec(self, cfg, meta: dict | None = None) -> MaskSpec:
+        """The refinement's settings: its input side, the first network's mask settings."""
+        first = _first_stage(cfg.teacher)[1]
+        return dataclasses.replace(first, crop_size=cfg.image_size)
+
+    def build_model(self, cfg):
+        from ..networks.foreground import ForegroundModel
+        return ForegroundModel(cfg.encoder_width or FOREGROUND_WIDTH, skeleton_weight=cfg.skeleton_weight,
+                               arch=cfg.arch, in_channels=4)
+
+    def inputs(self, cfg, dataset, indices, rng):
+        net, first = _first_stage(cfg.teacher)
+
+        def first_look(rgb: np.ndarray) -> np.ndarray:
+            with torch.no_grad():
+                return mask_output(net(torch.from_numpy(mask_input(rgb, first)[None])).numpy()[0, 0])
+
+        images, masks = refine_batch([dataset.samples[i] for i in indices], first_look, first, self.spec(cfg), rng)
+        out = [torch.from_numpy(images), torch.from_numpy(masks)]
+        out.append(torch.from_numpy(tubed_skeletons(masks)) if cfg.skeleton_weight > 0 else None)
+        return (*out, torch.from_numpy(thin_parts(masks)))
+
+
+@functools.lru_cache(maxsize=2)
+def _first_stage(path: str) -> tuple[nn.Module, MaskSpec]:
+    """The first foreground network of a refinement (eval mode) and its served mask settings."""
+    from ..checkpoint import load_model
+
+    loaded = load_model(path)
+    if loaded.config.task != "foreground":
+        raise ValueError(f"--teacher {path} is a {loaded.config.task} run, not a foreground network")
+    return loaded.model.net.eval(), TASKS["foreground"].spec(loaded.config, loaded.meta)
+
+
 TRAINED_REFINE_MIN = 32
 """The smallest square a network trained on second looks' views looks at again: every small object
 of the photo-like views (a network fine-tuned so scored 0.857 on validation with every second look,
@@ -367,7 +416,7 @@ FOREGROUND_WIDTH = 8
 """The foreground U-Net's default width (its first stage's channels)."""
 
 TASKS: dict[str, Task] = {"autoencoder": AutoencoderTask(), "image": ImageTask(), "completion": CompletionTask(),
-                          "classify": ClassifyTask(), "foreground": ForegroundTask()}
+                          "classify": ClassifyTask(), "foreground": ForegroundTask(), "refine": RefineTask()}
 
 
 def encode_with_guide(model: nn.Module, cfg: TrainConfig, dataset, indices) -> tuple[torch.Tensor, Guide | None]:

@@ -444,3 +444,56 @@ def test_a_model_retrained_for_photos_is_chosen_on_the_validation_photos(tiny_da
     # the figures are kept with what decides the masks: another foreground network measures again
     fingerprint = json.loads((run / "steps" / "000002" / "chamfer-photos.json").read_text())["settings"]["foreground"]
     assert fingerprint == foreground_fingerprint(runs / "fg") != foreground_fingerprint(tmp_path / "fg2")
+
+
+def test_thin_parts_are_the_objects_pixels_near_the_background():
+    from model.train.foreground import thin_parts
+
+    m = np.zeros((1, 1, 100, 100), np.float32)
+    m[0, 0, 10:90, 10:60] = 1                            # a body 80 x 50
+    m[0, 0, 40:42, 60:90] = 1                            # a rod two pixels thick
+    thin = thin_parts(m)[0, 0] > 0
+    assert thin[40:42, 62:90].all()                      # the whole rod is thin
+    assert not thin[30:70, 20:50].any()                  # the body's middle is not
+    assert thin[10, 10:60].all() and not (thin & (m[0, 0] == 0)).any()   # its rim is; never the background
+
+
+def test_the_refinement_trains_on_the_first_networks_mask_of_the_objects_square(tiny_data, runs, tmp_path):
+    """Its inputs are the object's square at the refinement's side with the first network's mask
+    as a fourth channel in [-1, 1], its targets the exact mask over the square; it trains and
+    reports the thin parts' recall."""
+    refine = dict(task="refine", arch="unet-lite", encoder_width=4, image_size=64, skeleton_weight=1.0,
+                  teacher=str(runs / "fg"))
+    t = Trainer(config(tiny_data, tmp_path / "r", iters=2, val_every=2, ckpt_every=2, **refine))
+    summary = t.run()
+    assert 0 <= summary["val"]["thin_recall"] <= 1 and 0 <= summary["val"]["iou"] <= 1
+    images, masks, skeletons, thin = t.task.inputs(t.cfg, t.train_set, t.batch_indices(0), np.random.default_rng(0))
+    assert images.shape[1:] == (4, 64, 64) and masks.shape[1:] == (1, 64, 64)
+    assert -1 <= float(images[:, 3].min()) and float(images[:, 3].max()) <= 1
+    assert float(masks.amax(dim=(1, 2, 3)).min()) > 0.5   # every square holds the object
+    assert float((thin * (masks <= 0.5)).sum()) == 0 and float(thin.sum()) > 0
+    with pytest.raises(ValueError, match="--teacher"):
+        Trainer(config(tiny_data, tmp_path / "bad", **{**refine, "teacher": None}))
+    with pytest.raises(ValueError, match="not a foreground network"):
+        Trainer(config(tiny_data, tmp_path / "bad2", **{**refine, "teacher": str(runs / "img")}))
+
+
+def test_a_refined_mask_replaces_the_first_in_the_objects_square():
+    from model.preprocess import MaskSpec, crop_input, refined_mask
+
+    spec = MaskSpec(size=32, crop_size=64, crop_margin=0.1)
+    rgb = np.zeros((120, 200, 3), np.uint8)
+    first = np.zeros((120, 200), np.float32)
+    first[40:80, 60:100] = 1                              # the first look: a square body, no rod
+    x = crop_input(rgb, first, (36, 84, 56, 104), spec)
+    assert x.shape == (4, 64, 64) and x[3].max() == 1 and x[3].min() == -1
+
+    def refine(crop):                                     # a refinement that finds a rod right of the body
+        p = (crop[3] > 0).astype(np.float32)
+        p[28:34, 50:64] = 1
+        return p
+
+    out = refined_mask(rgb, first, refine, spec)
+    assert out.shape == first.shape and out[40:80, 60:100].min() > 0.5
+    assert out[60, 100:104].min() > 0.5                   # the rod, to the square's edge
+    assert out[:, :50].max() == 0 and out[:30].max() == 0  # nothing outside the square

@@ -1,0 +1,108 @@
+"""The request path through the running service: latency of one request at a time, and where it
+goes (``Server-Timing``), for the inputs of the request-speed targets.
+
+    python -m bench.requests [--requests 12] [--drop 2] [--cases completion photo render]
+                             [--query surface=patches] [--json PATH]
+
+Starts ``python -m service`` with the bundled models (:func:`bench.load.serve`), sends each case's
+request ``--requests`` times in a row, drops the first ``--drop`` (warm-up), and prints the median
+and the worst latency measured by the client, each stage's median, and the share of the median
+request spent outside the networks (completion: encoder + decoder; photos: mask + encoder +
+decoder).  Cases: ``completion``, the 20,000-point scan examples/car_partial_scan.ply at the
+model's depth 7; ``photo``, a 640x480 JPEG photo of a generated chair on a procedural scene
+(background removal on); ``render``, examples/chair.png (RGBA).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import httpx2 as httpx
+import numpy as np
+from PIL import Image
+
+from bench.load import _stages, serve
+from model.cli import command_parser
+
+NETWORKS = {"completion": ("encoder", "decoder"), "photo": ("mask", "encoder", "decoder"),
+            "render": ("encoder", "decoder")}
+TARGETS = {"completion": (100.0, 0.30), "photo": (40.0, 0.35)}
+"""Case -> (median latency in ms, share outside the networks) the request-speed issue asks for."""
+
+
+def photo_jpeg(seed: int = 0) -> bytes:
+    """A 640x480 JPEG photo of a generated chair (a 384-pixel render) on a procedural scene."""
+    from model.data.photos import PhotoStyle, photo_composite
+    from model.data.render import render_views
+    from model.data.shapes import generate
+
+    rng = np.random.default_rng(seed)
+    render = render_views(generate("chair", 3), n_views=1, rng=rng, size=384)[0][0]
+    style = PhotoStyle(scale=(0.6, 0.6), short_side=(480, 480), aspect=(4 / 3, 4 / 3), real=0.0, jpeg=0.0)
+    photo = photo_composite(render, rng, "train", style)
+    buf = io.BytesIO()
+    Image.fromarray(photo.rgb).save(buf, format="JPEG", quality=90)
+    return buf.getvalue()
+
+
+def case_upload(case: str) -> tuple[str, str, str, bytes]:
+    """(endpoint, field, file name, bytes) of a case."""
+    if case == "completion":
+        return "complete", "points", "car_partial_scan.ply", Path("examples/car_partial_scan.ply").read_bytes()
+    if case == "photo":
+        return "image-to-shape", "image", "photo.jpg", photo_jpeg()
+    return "image-to-shape", "image", "chair.png", Path("examples/chair.png").read_bytes()
+
+
+def measure(base: str, case: str, requests: int, drop: int, query: str) -> dict:
+    endpoint, field, name, data = case_upload(case)
+    url = f"{base}/v1/{endpoint}" + (f"?{query}" if query else "")
+    latency, stages = [], {}
+    with httpx.Client(timeout=120) as client:
+        for _ in range(requests):
+            t = time.perf_counter()
+            r = client.post(url, files={field: (name, data)})
+            dt = time.perf_counter() - t
+            if r.status_code != 200:
+                raise RuntimeError(f"{case}: {r.status_code} {r.text[:200]}")
+            latency.append(dt)
+            for stage, sec in _stages(r.headers.get("server-timing", "")).items():
+                stages.setdefault(stage, []).append(sec)
+    kept = latency[drop:]
+    median = {k: 1e3 * statistics.median(v[drop:]) for k, v in stages.items()}
+    p50 = 1e3 * statistics.median(kept)
+    networks = sum(median.get(s, 0.0) for s in NETWORKS[case])
+    return {"case": case, "requests": len(kept), "p50_ms": p50, "worst_ms": 1e3 * max(kept),
+            "outside_networks": 1 - networks / p50, "stage_ms": median}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = command_parser("python -m bench.requests", __doc__, ["python -m bench.requests --cases completion photo"])
+    ap.add_argument("--requests", type=int, default=12, help="requests per case (default 12)")
+    ap.add_argument("--drop", type=int, default=2, help="first requests left out (default 2)")
+    ap.add_argument("--cases", nargs="+", choices=sorted(NETWORKS), default=["completion", "photo", "render"])
+    ap.add_argument("--query", default="", help="query parameters of every request (default: none)")
+    ap.add_argument("--json", default=None, help="also write the figures here")
+    args = ap.parse_args(argv)
+    with serve() as (base, _):
+        rows = [measure(base, c, args.requests, args.drop, args.query) for c in args.cases]
+    print(f"{args.requests - args.drop} requests a case (first {args.drop} dropped), one at a time"
+          + (f", ?{args.query}" if args.query else ""))
+    for r in rows:
+        target = TARGETS.get(r["case"])
+        goal = f"  (targets: p50 <= {target[0]:.0f} ms, outside <= {target[1]:.0%})" if target else ""
+        print(f"{r['case']:>10}: p50 {r['p50_ms']:6.1f} ms, worst {r['worst_ms']:6.1f} ms, outside the networks "
+              f"{r['outside_networks']:.0%}{goal}")
+        print("            median ms per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in r["stage_ms"].items()))
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
