@@ -108,7 +108,7 @@ def draw_figure(path: Path, tiles, seed: int, side: int = 160) -> None:
     from PIL import Image
 
     from model.data.render import render
-    from model.preprocess import composite
+    from model.image.frame import composite
 
     def picture(mesh):
         rgba, _ = render(mesh, 35.0, 25.0, 2.8, size=side, color=(0.55, 0.62, 0.75))

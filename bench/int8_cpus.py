@@ -83,7 +83,7 @@ def measure(checkpoint: str, per_category: int, views: int) -> dict:
     from export.exporter import foreground_photos, load_foreground
     from export.quantize import quantize_static_graph
     from model.data.photos import generated_photos
-    from model.preprocess import mask_input, resize_mask
+    from model.image.mask import mask_input, resize_mask
 
     if shutil.which("qemu-x86_64") is None:
         raise SystemExit("error: needs qemu-user (apt-get install qemu-user) to run the AVX2 kernels")

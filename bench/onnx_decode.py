@@ -45,7 +45,7 @@ from model.networks import TorchSteps
 from model.octree import build_octree
 from model.octree.batch import merge_octrees, split_octree
 from model.octree.patches import patches_to_mesh
-from model.preprocess import ImageSpec, prepare_image
+from model.image.frame import ImageSpec, prepare_image
 from model.cli import command_parser
 
 TARGET_SPEEDUP, TARGET_BOOKKEEPING = 2.0, 0.20

@@ -33,7 +33,8 @@ import trimesh
 from PIL import Image
 
 from model.cli import command_parser
-from model.preprocess import WORK_SIDE_DEFAULT, mask_iou
+from model.image.decode import WORK_SIDE_DEFAULT
+from model.image.mask import mask_iou
 
 REAL_MESHES = {
     # file: (category, up axis of the file): ModelNet40 is z-up, ShapeNet y-up
@@ -56,9 +57,10 @@ class Reconstruction:
 def reconstruct(data: bytes, runtime, remove_background: str = "auto",
                 work_side: int | None = WORK_SIDE_DEFAULT) -> Reconstruction:
     """The image endpoint's work on an uploaded photo (bytes), stage by stage, timed; ``work_side``
-    as :func:`model.preprocess.decode_photo` (None: the photo at full size, as before it existed)."""
+    as :func:`model.image.decode.decode_photo` (None: the photo at full size, as before it existed)."""
     from model.decode import DECODED_NORMALIZATION
-    from model.preprocess import MaskSpec, decode_photo
+    from model.image.decode import decode_photo
+    from model.image.mask import MaskSpec
     from model.train.images import frame_or_whole
     from model.surface import surface_mesh
     from service.meshes import encode
@@ -156,11 +158,11 @@ def phone_photos(data: str, shapes: int) -> list[tuple[bytes, np.ndarray]]:
 
 def phone_timing(runtime, photos: list[tuple[bytes, np.ndarray]], repeats: int) -> dict:
     """Median seconds per request of phone photos with background removal, and the mean mask IoU
-    at the photo's size: worked on at the working size (:data:`model.preprocess.WORK_SIDE_DEFAULT`)
+    at the photo's size: worked on at the working size (:data:`model.image.decode.WORK_SIDE_DEFAULT`)
     against at full size (the path before the working size existed)."""
     import dataclasses
 
-    from model.preprocess import upload_mask
+    from model.image.frame import upload_mask
 
     out = {}
     for name, side in (("full size", None), ("working size", WORK_SIDE_DEFAULT)):
@@ -232,7 +234,7 @@ def classify_output(classifier, octree, depth: int) -> tuple[str, float]:
 def figure(rows: list[tuple[str, np.ndarray, object, object]], path: str) -> None:
     """One row per photo: the photo, the mask used, the encoder's input (the crop) and the output's
     patches, each a tile."""
-    from model.figures import TILE, tile
+    from research.figures import TILE, tile
     from model.octree.patches import patches_to_mesh
 
     def fit(img: Image.Image) -> Image.Image:

@@ -111,7 +111,7 @@ def decoded_octrees(data: str, shapes: int) -> list[tuple[str, object]]:
     from export.runtime import Runtime
     from model.data.dataset import load_record
     from model.octree.batch import split_octree
-    from model.preprocess import prepare_image
+    from model.image.frame import prepare_image
 
     manifest = Path(data) / "manifest.json"
     if not manifest.is_file():
@@ -168,7 +168,7 @@ def accuracy(depths: list[int], mesh_dir: str) -> int:
     """The ``--accuracy`` table (module docstring)."""
     import trimesh
 
-    from model.evaluate import fscore_threshold
+    from research.evaluate import fscore_threshold
     from model.octree.metrics import Reference
     from model.surface import surface_mesh
     from model.surface.checks import is_closed
@@ -222,7 +222,7 @@ def figure(inputs: list[tuple[str, object]], out: str) -> None:
     import trimesh
     from PIL import Image, ImageDraw
 
-    from model.figures import TILE, VIEW, tile
+    from research.figures import TILE, VIEW, tile
     from model.surface import surface_mesh
 
     rows = []

@@ -19,7 +19,8 @@ from pathlib import Path
 from model.decode import empty_bias_of
 from model.files import sha256_file
 from model.octree.build import MAX_BUILD_DEPTH
-from model.preprocess import ImageSpec, MaskSpec
+from model.image.frame import ImageSpec
+from model.image.mask import MaskSpec
 
 BUNDLE_FORMAT = 2
 """The newest bundle layout this code reads and writes; newer bundles are refused.  2 adds guided
@@ -84,7 +85,7 @@ class Bundle:
     meta: dict = field(repr=False)        # the whole model.json (export settings, provenance, evaluation)
     keep_scan_bias: dict[int, float] = field(default_factory=dict)
     """The empty-class bias per depth a completion decodes with when its output keeps the scan
-    (``output.keep_scan``, chosen on the validation split by ``python -m model.calibrate --keep-scan``)."""
+    (``output.keep_scan``, chosen on the validation split by ``python -m research.calibrate --keep-scan``)."""
 
     def file(self, graph: str) -> Path:
         return self.path / self.graphs[graph].file

@@ -1,6 +1,6 @@
 """Checkpoint -> bundle: load a trained model, export its graphs, write and self-check the bundle.
 
-Loadeds: a shipped checkpoint folder (``model.pt`` + ``model.json``, as ``model.release``
+Loadeds: a shipped checkpoint folder (``model.pt`` + ``model.json``, as ``research.release``
 writes) or a training run folder (``checkpoint.pt``).  The bundle is written to a temporary
 folder beside the target and renamed when complete, after onnxruntime has decoded a few latent
 codes and matched torch (:func:`self_check`): a half-written or wrong bundle never appears.
@@ -26,7 +26,7 @@ from model.networks import ARCHS, CLASSIFIER_ARCHS, OctreeDecoder, TorchSteps
 from model.nn.tensors import OctreeTensors
 from model.octree import DEFAULT_THRESHOLD
 from model.octree.pointcloud import SCAN_FRAME_MARGIN
-from model.preprocess import MaskSpec
+from model.image.mask import MaskSpec
 from model.checkpoint import Loaded, load_model
 from model.train.tasks import TASKS
 
@@ -151,7 +151,7 @@ def foreground_photos(size: int, seed: int = 0) -> tuple[list[np.ndarray], list[
     generator's training shapes photographed (:func:`model.data.photos.generated_photos`), every
     other photo in each list."""
     from model.data.photos import generated_photos
-    from model.preprocess import mask_input
+    from model.image.mask import mask_input
 
     spec = MaskSpec(size=size)
     inputs = [mask_input(p.rgb, spec)[None] for p in generated_photos(per_category=2, views=2, seed=seed)]

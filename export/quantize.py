@@ -6,7 +6,7 @@ with calibration inputs (what the export does to the foreground network).
 Writes a copy of the bundle with the chosen graphs quantised by
 ``onnxruntime.quantization.quantize_dynamic`` (MatMul/Gemm and Conv weights, signed int8) and
 model.json updated (checksums, ``export.quantized``).  Whether it pays is measured, not assumed:
-``bench.onnx_decode`` for speed and ``model.evaluate --bundle`` for the Chamfer distance.  (The
+``bench.onnx_decode`` for speed and ``research.evaluate --bundle`` for the Chamfer distance.  (The
 encoders' convolutions become ``ConvInteger`` that way, slower than float32 in onnxruntime; static
 quantisation, :func:`quantize_static_graph`, gives ``QLinearConv``-able QDQ pairs instead.)
 """

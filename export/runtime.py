@@ -17,7 +17,7 @@ import onnxruntime as ort
 
 from model.decode import Guide, decode
 from model.octree import Octree
-from model.preprocess import mask_input, mask_output
+from model.image.mask import mask_input, mask_output
 
 from .bundle import Bundle, BundleError, GraphSpec
 
@@ -104,13 +104,13 @@ class Runtime:
         return self.sessions[graph].run(None, feeds)
 
     def encode_image(self, images: np.ndarray) -> np.ndarray:
-        """Latent codes (B, L) of preprocessed images (B, 3, S, S) (:func:`model.preprocess.prepare_image`)."""
+        """Latent codes (B, L) of preprocessed images (B, 3, S, S) (:func:`model.image.frame.prepare_image`)."""
         return self.run("image_encoder", {"image": np.ascontiguousarray(images, dtype=np.float32)})[0]
 
     def segment(self, rgb: np.ndarray) -> np.ndarray:
         """(size, size) object probability, on the network's grid over the whole image, of an
-        (H, W, 3) uint8 image by the bundle's foreground network (:func:`model.preprocess.mask_input`
-        / :func:`mask_output`; :func:`model.preprocess.to_image` brings it to the image); ValueError
+        (H, W, 3) uint8 image by the bundle's foreground network (:func:`model.image.mask.mask_input`
+        / :func:`mask_output`; :func:`model.image.mask.to_image` brings it to the image); ValueError
         without one."""
         spec = self.bundle.mask_spec()
         if spec is None:

@@ -1,5 +1,5 @@
 """Load a trained model from a run folder (``checkpoint.pt``) or a shipped checkpoint folder
-(``model.pt`` + ``model.json``, as :mod:`model.release` writes): one loader for evaluation,
+(``model.pt`` + ``model.json``, as :mod:`research.release` writes): one loader for evaluation,
 calibration, figures and export.  Reading the files is :func:`model.train.config.read_run`'s;
 this builds the task's network from them."""
 

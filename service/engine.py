@@ -15,7 +15,8 @@ from PIL import Image
 from export.bundle import Bundle, BundleError, load_bundle
 from export.runtime import Runtime
 from model.decode import DECODED_NORMALIZATION
-from model.preprocess import Framed, MaskSpec, upload_mask
+from model.image.frame import Framed, upload_mask
+from model.image.mask import MaskSpec
 from model.surface import DEFAULT_SURFACE, SURFACES, surface_mesh
 from model.octree import Octree, PointCloud, build_octree, scan_octree
 from model.octree.geometry import to_y_up, up_rotations

@@ -17,7 +17,9 @@ from pathlib import Path
 from model.formats import IMAGE_FORMATS, MESH_FORMATS, POINT_FORMATS, identify, not_taken
 from model.octree import OctreeInputError
 from model.octree.inputs import HEADER_BYTES, LoadedInput, load_input, ply_vertex_count
-from model.preprocess import Framed, ImageError, ImageSpec, MaskSpec, NoObjectError, decode_photo, frame_object
+from model.image.decode import decode_photo, ImageError
+from model.image.frame import frame_object, Framed, ImageSpec
+from model.image.mask import MaskSpec, NoObjectError
 
 from .errors import APIError
 
@@ -29,8 +31,8 @@ IMAGES_TAKEN = f"this endpoint takes an image ({IMAGE_FORMATS})"
 def image_input(data: bytes, spec: ImageSpec, max_pixels: int, segment=None, remove_background: str = "auto",
                 foreground_ratio: float | None = None, mask_spec: MaskSpec = MaskSpec()) -> Framed:
     """An uploaded image decoded (a large photo reduced as it is decoded:
-    :func:`model.preprocess.decode_photo`) and framed for the encoder
-    (:func:`model.preprocess.frame_object`: ``segment`` is the foreground network, None without
+    :func:`model.image.decode.decode_photo`) and framed for the encoder
+    (:func:`model.image.frame.frame_object`: ``segment`` is the foreground network, None without
     one; the upload's size kept on the result), or a 4xx (415 naming what else it is, 422 when it
     shows no object or asks for a background removal the model cannot do)."""
     if not data:

@@ -8,7 +8,7 @@ from pydantic import BaseModel, Field
 
 Format = Literal["glb", "gltf", "ply", "obj"]
 Surface = Literal["watertight", "patches"]
-RemoveBackground = Literal["auto", "true", "false"]       # model.preprocess.REMOVE_BACKGROUND
+RemoveBackground = Literal["auto", "true", "false"]       # model.image.frame.REMOVE_BACKGROUND
 Debug = Literal["mask"]
 Up = Literal["y", "z"]                                     # model.octree.geometry.to_y_up
 

@@ -1,6 +1,8 @@
 """The layers read one way: no import cycle among the project's modules (every import counts,
-those inside functions and under TYPE_CHECKING too), and the octree core imports nothing of the
-project but its base modules."""
+those inside functions and under TYPE_CHECKING too); the packages stack model < export <
+service and research (the library never imports the export, the service or the research tools;
+the export neither of the two above it; the service and the research tools not each other); and
+the octree core imports nothing of the project but its base modules."""
 
 from __future__ import annotations
 
@@ -8,7 +10,10 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("model", "export", "service")
+PACKAGES = ("model", "export", "service", "research")
+BELOW = {"model": {"model"}, "export": {"model", "export"}, "service": {"model", "export", "service"},
+         "research": {"model", "export", "research"}}
+"""Package -> the packages its modules may import."""
 BASE = {"model.files", "model.formats", "model.cli"}
 """Modules below everything (file writing, format recognition, the command lines' form), importing
 nothing of the project."""
@@ -99,3 +104,10 @@ def test_the_octree_core_and_the_base_modules_stand_alone():
             assert not deps, (name, deps)
         if name.startswith("model.octree") and not name.endswith("__main__"):
             assert all(d.startswith("model.octree") or d in BASE for d in deps), (name, deps)
+
+
+def test_the_packages_stack_one_way():
+    graph = import_graph()
+    wrong = [(name, d) for name, deps in graph.items() for d in deps
+             if d.split(".")[0] not in BELOW[name.split(".")[0]]]
+    assert wrong == []

@@ -23,7 +23,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFilter, ImageFont
 from scipy import ndimage
 
-from ..preprocess import mask_bounds
+from ..image.mask import mask_bounds
 from .shapes import stable_hash
 
 TRAIN_PHOTOS = ("astronaut.png", "chelsea.png", "coffee.png", "motorcycle_left.png", "brick.png", "grass.png",

@@ -6,9 +6,9 @@ stages, each two 3x3 convolutions with batch norm and ReLU, halving the resoluti
 of the same resolution and applies two more convolutions; a 1x1 convolution to one logit per pixel.
 Widths double per stage from ``width``, capped at 8 x ``width``.  :class:`LiteForegroundNet` is
 the same design with its work moved to coarser resolutions.  Input: (B, 3, S, S) images normalised
-as :func:`model.preprocess.mask_input` makes them (S divisible by the network's ``divisor``), or
+as :func:`model.image.mask.mask_input` makes them (S divisible by the network's ``divisor``), or
 with ``in_channels=4`` the refinement network's (B, 4, S, S) crops with the first mask
-(:func:`model.preprocess.crop_input`); output: (B, 1, S, S) logits of "object".
+(:func:`model.image.mask.crop_input`); output: (B, 1, S, S) logits of "object".
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ export, so that each of them can load a run without importing another.
 
 A run folder holds ``checkpoint.pt`` (written by :meth:`model.train.loop.Trainer.save`); a
 checkpoint folder holds ``model.pt`` (a state dict, float32 or half precision) and ``model.json``
-(written by :mod:`model.release`).  :func:`read_run` reads either into a :class:`SavedRun`;
+(written by :mod:`research.release`).  :func:`read_run` reads either into a :class:`SavedRun`;
 building the network from it is the task's (:func:`model.checkpoint.load_model`).
 """
 
@@ -17,7 +17,7 @@ from pathlib import Path
 import torch
 
 from ..files import atomic_path, json_text, sha256_file, write_atomic
-from ..preprocess import ImageSpec
+from ..image.frame import ImageSpec
 
 
 @dataclass
@@ -170,17 +170,17 @@ class SavedRun:
 
 KEEP_SCAN_FILE = "keep_scan.json"
 """A run folder's decode setting for completions that keep the scan (a checkpoint folder keeps it
-in model.json's ``keep_scan``), written by ``python -m model.calibrate --keep-scan``."""
+in model.json's ``keep_scan``), written by ``python -m research.calibrate --keep-scan``."""
 
 
 MASK_GUIDE_FILE = "mask_guide.json"
 """A foreground run folder's guided filter of its masks (a checkpoint folder keeps it in
-model.json's ``mask_guide``), written by ``python -m model.calibrate --mask-guide``."""
+model.json's ``mask_guide``), written by ``python -m research.calibrate --mask-guide``."""
 
 
 INIT_FILE = "init.json"
 """A run folder's record of the weights it started from (``--init``): the folder given, its
-weights' sha256 (a checkpoint folder's) and steps; :mod:`model.release` copies it to model.json."""
+weights' sha256 (a checkpoint folder's) and steps; :mod:`research.release` copies it to model.json."""
 
 
 def read_run(path: str | Path) -> SavedRun:

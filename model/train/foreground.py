@@ -2,7 +2,7 @@
 
 Every sample is a random view of a shape placed on a random background by
 :func:`model.data.photos.photo_composite`, made into the network's input by the same
-:func:`model.preprocess.mask_input` the service runs; its target is the exact alpha, box-filtered
+:func:`model.image.mask.mask_input` the service runs; its target is the exact alpha, box-filtered
 to the network's resolution.  A share of the samples (``crop_share``) is what a second look sees
 (:func:`second_look`): the object's square cut from the photo and enlarged to the network's input.
 Validation draws one fixed composite per shape (training backgrounds; the held-out photographs
@@ -11,8 +11,8 @@ skeleton (:func:`tubed_skeletons`) for the skeleton recall loss.
 
 The refinement network (:func:`refine_batch`) is trained on what it is served: larger photos
 (:data:`REFINE_STYLE`), the first network's mask of each (the served first stage,
-:func:`model.preprocess.object_mask`), and the object's square about that mask cut at its own
-resolution (:func:`model.preprocess.crop_input`), its target the exact mask over the same square;
+:func:`model.image.mask.object_mask`), and the object's square about that mask cut at its own
+resolution (:func:`model.image.mask.crop_input`), its target the exact mask over the same square;
 validation reports the recall of the thin parts (:func:`thin_parts`) apart.
 """
 
@@ -25,8 +25,7 @@ from skimage.morphology import skeletonize
 
 from ..data.photos import Photo, PhotoStyle, mask_box, photo_composite
 from ..data.shapes import stable_hash
-from ..preprocess import (MaskSpec, NoObjectError, crop_input, mask_bounds, mask_input, object_mask, object_square,
-                          refine_square, resize_mask)
+from ..image.mask import (crop_input, mask_bounds, mask_input, MaskSpec, NoObjectError, object_mask, object_square, refine_square, resize_mask)
 from .data import Sample
 
 BOX_ERROR = 0.1
@@ -34,7 +33,7 @@ BOX_ERROR = 0.1
 
 
 def second_look(photo: Photo, rng: np.random.Generator, spec: MaskSpec) -> Photo:
-    """What :func:`model.preprocess.object_mask`'s second look cuts from ``photo``: the square about
+    """What :func:`model.image.mask.object_mask`'s second look cuts from ``photo``: the square about
     the object's box (its edges moved by up to :data:`BOX_ERROR`, as a first look's mask places
     them), with ``spec.refine_margin``; ``photo`` itself when the object is not in it or the square
     covers ``spec.refine`` of the photo or more (no second look then)."""

@@ -2,7 +2,7 @@
 
 Training takes a random view of each shape and, for a share of the samples, composites it onto a
 random background (plain colour, gradient, noise, or another shape's render) before the same
-:func:`model.preprocess.prepare_image` the service runs, so photos with a background are in
+:func:`model.image.frame.prepare_image` the service runs, so photos with a background are in
 distribution; another share is made a photo (an object on a real or procedural scene, no alpha) and
 brought back through the service's background removal with an imperfect mask.  Evaluation takes a
 fixed view per shape on the spec's plain background.
@@ -15,7 +15,8 @@ import numpy as np
 from ..data.render import composite
 from ..data.shapes import stable_hash
 from ..data.photos import ENCODER_STYLE, imperfect_mask, photo_composite, photo_split_view
-from ..preprocess import Framed, ImageSpec, MaskSpec, NoObjectError, frame_object, mask_iou, prepare_image
+from ..image.frame import frame_object, Framed, ImageSpec, prepare_image
+from ..image.mask import mask_iou, MaskSpec, NoObjectError
 from .data import Sample
 
 

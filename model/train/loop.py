@@ -213,7 +213,7 @@ class Trainer:
     def snapshot(self, validation: dict[str, float]) -> None:
         """Keep this step's weights as a checkpoint folder ``RUN/steps/<step>/`` (half precision,
         with the validation losses): the validated steps a checkpoint can be chosen among
-        (``python -m model.curves --chamfer`` measures each)."""
+        (``python -m research.curves --chamfer`` measures each)."""
         if self.rank != 0:
             return
         config = {k: v for k, v in asdict(self.cfg).items() if k not in ("out", "progress")}

@@ -24,7 +24,8 @@ from ..decode import Guide, matched_rows
 from ..files import atomic_path
 from ..networks.decoder import STRUCTURE_LOSSES
 from ..nn.tensors import OctreeTensors
-from ..preprocess import ImageSpec, MaskSpec, mask_input, mask_output, prepare_image
+from ..image.frame import ImageSpec, prepare_image
+from ..image.mask import mask_input, mask_output, MaskSpec
 from .config import TrainConfig, read_run
 from .data import RecordSet
 from .foreground import mask_batch, refine_batch, thin_parts, tubed_skeletons
@@ -399,12 +400,12 @@ class RefineTask(ForegroundTask):
 @functools.lru_cache(maxsize=2)
 def _first_stage(path: str) -> tuple[nn.Module, MaskSpec]:
     """The first foreground network of a refinement (eval mode) and its served mask settings."""
-    from ..checkpoint import load_model
-
-    loaded = load_model(path)
-    if loaded.config.task != "foreground":
-        raise ValueError(f"--teacher {path} is a {loaded.config.task} run, not a foreground network")
-    return loaded.model.net.eval(), TASKS["foreground"].spec(loaded.config, loaded.meta)
+    saved = read_run(path)
+    if saved.config.task != "foreground":
+        raise ValueError(f"--teacher {path} is a {saved.config.task} run, not a foreground network")
+    model = ForegroundTask().build_model(saved.config)
+    model.load_state_dict(saved.weights)
+    return model.net.eval(), ForegroundTask().spec(saved.config, saved.meta)
 
 
 TRAINED_REFINE_MIN = 32

@@ -10,7 +10,7 @@ from fastapi.responses import Response
 from model.formats import IMAGE_FORMATS
 from model.octree.build import MAX_BUILD_DEPTH
 from model.octree.symmetry import MIN_SUPPORT, Mirror
-from model.preprocess import Framed, upload_box
+from model.image.frame import Framed, upload_box
 from model.surface import DEFAULT_SURFACE
 
 from ..deps import engine, require_key

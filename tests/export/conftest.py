@@ -78,7 +78,7 @@ class _BiasToMixedTree(TorchSteps):
 
 
 def save_checkpoint(model: torch.nn.Module, cfg: TrainConfig, folder) -> None:
-    """A checkpoint folder as model.release writes it (model.pt + model.json)."""
+    """A checkpoint folder as research.release writes it (model.pt + model.json)."""
     folder.mkdir(parents=True, exist_ok=True)
     torch.save(model.state_dict(), folder / "model.pt")
     config = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("data", "out", "progress")}

@@ -122,7 +122,7 @@ def test_the_serving_side_runs_with_torch_absent(exported):
         import numpy as np
         from export.bundle import load_bundle
         from export.runtime import Runtime
-        import export.__main__, model.decode, model.preprocess, model.octree, model.octree.patches
+        import export.__main__, model.decode, model.image.frame, model.octree, model.octree.patches
         runtime = Runtime(load_bundle({str(folder)!r}), threads=1)
         from model.octree import build_octree
         rng = np.random.default_rng(0)

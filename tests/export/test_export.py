@@ -20,7 +20,7 @@ from model.octree import LEAF, build_octree
 from model.octree.batch import split_octree
 from model.octree.metrics import sample_patches
 from model.octree.patches import patches_to_mesh
-from model.preprocess import prepare_image
+from model.image.frame import prepare_image
 
 from .conftest import octree_batch
 

@@ -7,9 +7,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from model.preprocess import (MIN_OBJECT_SIDE, ImageError, ImageSpec, MaskSpec, NoObjectError, clean_mask, frame_object,
-                              mask_bounds, mask_input, mask_output, object_mask, object_square, resize_mask,
-                              to_image)
+from model.image.decode import ImageError
+
+from model.image.frame import frame_object, ImageSpec, MIN_OBJECT_SIDE
+
+from model.image.mask import (clean_mask, mask_bounds, mask_input, mask_output, MaskSpec, NoObjectError, object_mask, object_square, resize_mask, to_image)
 
 SPEC = ImageSpec(size=64)
 
@@ -273,7 +275,7 @@ def test_the_guided_filter_follows_the_images_edges():
     are."""
     from scipy import ndimage
 
-    from model.preprocess import guided_filter
+    from model.image.mask import guided_filter
 
     rgb = np.full((60, 80, 3), 220, np.uint8)
     truth = np.zeros((60, 80), bool)
@@ -343,7 +345,7 @@ def test_the_guided_filter_brings_a_coarse_grid_to_the_image_along_its_edges():
     the grid resized; and a grid the image's own size is the plain guided filter."""
     from scipy import ndimage
 
-    from model.preprocess import guided_filter
+    from model.image.mask import guided_filter
 
     rng = np.random.default_rng(0)
     rgb = np.full((600, 800, 3), 200, np.uint8)

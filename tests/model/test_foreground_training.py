@@ -11,7 +11,7 @@ import torch
 
 from export.parity import RELATIVE_TOLERANCE
 from model.networks.foreground import ForegroundNet, mask_losses
-from model.preprocess import prepare_image
+from model.image.frame import prepare_image
 from model.train.loop import Trainer
 
 from .test_train import config, trains_and_resumes_identically
@@ -123,7 +123,7 @@ def test_the_light_network_trains_resumes_and_exports_as_the_bundle_runs_it(tiny
     from export.runtime import Runtime
     from model.checkpoint import load_model
     from model.networks.foreground import LiteForegroundNet
-    from model.preprocess import MaskSpec, mask_input, mask_output
+    from model.image.mask import mask_input, mask_output, MaskSpec
 
     lite = {**FG, "arch": "unet-lite"}
     straight, summary = trains_and_resumes_identically(tiny_data, tmp_path, **lite)
@@ -145,7 +145,7 @@ def test_the_light_network_trains_resumes_and_exports_as_the_bundle_runs_it(tiny
 
 def test_a_second_looks_view_is_the_objects_square_cut_from_the_photo():
     from model.data.photos import Photo, mask_box
-    from model.preprocess import MaskSpec
+    from model.image.mask import MaskSpec
     from model.train.foreground import BOX_ERROR, second_look
 
     spec = MaskSpec(size=32)
@@ -184,8 +184,8 @@ def test_a_network_trained_on_second_looks_looks_again_at_small_squares(tiny_dat
 
 def test_a_run_started_from_another_runs_weights(tiny_data, runs, tmp_path, capsys):
     """--init: a new run starts from another's weights (the same task and network), records where
-    they came from, and model.release carries that into model.json; a run that does not fit is refused."""
-    from model.release import RECIPES, package
+    they came from, and research.release carries that into model.json; a run that does not fit is refused."""
+    from research.release import RECIPES, package
     from model.train.__main__ import main
 
     Trainer(config(tiny_data, tmp_path / "a", iters=2, **FG)).run()
@@ -257,7 +257,7 @@ def test_an_image_model_retrained_for_photos_starts_from_its_teacher(tiny_data, 
 
 
 def teacher_spec():
-    from model.preprocess import ImageSpec
+    from model.image.frame import ImageSpec
     return ImageSpec(size=32)
 
 
@@ -266,7 +266,7 @@ def test_the_bundle_carries_the_foreground_network_and_the_photo_evaluation_uses
     from export.bundle import BundleError, load_bundle
     from export.exporter import export
     from export.runtime import Runtime
-    from model.evaluate import evaluate
+    from research.evaluate import evaluate
     from model.checkpoint import load_model
 
     bundle, meta = float32_bundle
@@ -278,7 +278,7 @@ def test_the_bundle_carries_the_foreground_network_and_the_photo_evaluation_uses
     rgb = np.random.default_rng(0).integers(0, 256, (40, 70, 3), dtype=np.uint8)
     p = rt.segment(rgb)
     assert p.shape == (32, 32) and 0 <= p.min() and p.max() <= 1           # the network's grid
-    from model.preprocess import MaskSpec, mask_input, mask_output
+    from model.image.mask import mask_input, mask_output, MaskSpec
     with torch.no_grad():
         logits = load_model(runs / "fg").model.net(torch.from_numpy(mask_input(rgb, MaskSpec(size=32))[None]))
     assert np.abs(mask_output(logits.numpy()[0, 0]) - p).max() < 1e-4
@@ -345,7 +345,7 @@ def test_the_default_bundle_stores_the_foreground_network_in_int8_and_it_masks_a
 def test_photo_inputs_are_framed_objects_for_any_draw():
     """The image model's photo samples: the object cut out again with a degraded mask and framed
     (every draw, small objects and objects at the border included), not the scene."""
-    from model.preprocess import ImageSpec
+    from model.image.frame import ImageSpec
     from model.train.images import photo_input
 
     rgba = np.zeros((137, 137, 4), np.uint8)
@@ -367,8 +367,8 @@ def test_the_guided_filter_is_calibrated_on_validation_recorded_and_exported(tin
 
     from export.bundle import load_bundle
     from export.exporter import export
-    from model.calibrate import MASK_GUIDE_EPS, MASK_GUIDE_RADII, main
-    from model.evaluate import evaluate
+    from research.calibrate import MASK_GUIDE_EPS, MASK_GUIDE_RADII, main
+    from research.evaluate import evaluate
 
     run = tmp_path / "fg"
     shutil.copytree(runs / "fg", run)
@@ -393,7 +393,7 @@ def test_the_guided_filter_is_calibrated_on_validation_recorded_and_exported(tin
 
 def test_photos_without_a_bundle_take_the_foreground_network_in_torch_as_its_bundle_would(tiny_data, runs,
                                                                                          float32_bundle):
-    from model.evaluate import evaluate
+    from research.evaluate import evaluate
 
     bundle, _ = float32_bundle
     kw = dict(resolution=16, limit=3, photos=True)
@@ -413,9 +413,9 @@ def test_photos_without_a_bundle_take_the_foreground_network_in_torch_as_its_bun
 
 
 def test_a_model_retrained_for_photos_is_chosen_on_the_validation_photos(tiny_data, runs, tmp_path, capsys):
-    from model.choose import main
-    from model.curves import foreground_fingerprint
-    from model.evaluate import evaluate
+    from research.choose import main
+    from research.curves import foreground_fingerprint
+    from research.evaluate import evaluate
 
     run, out = tmp_path / "s", tmp_path / "best"
     Trainer(config(tiny_data, tmp_path / "fg2", iters=2, **FG)).run()
@@ -479,7 +479,7 @@ def test_the_refinement_trains_on_the_first_networks_mask_of_the_objects_square(
 
 
 def test_a_refined_mask_replaces_the_first_in_the_objects_square():
-    from model.preprocess import MaskSpec, crop_input, refined_mask
+    from model.image.mask import crop_input, MaskSpec, refined_mask
 
     spec = MaskSpec(size=32, crop_size=64, crop_margin=0.1)
     rgb = np.zeros((120, 200, 3), np.uint8)

@@ -37,7 +37,7 @@ def _decodes_a_photo(loaded, meta):
     from model.decode import decode
     from model.networks import TorchSteps
     from model.octree.batch import split_octree
-    from model.preprocess import prepare_image
+    from model.image.frame import prepare_image
 
     model, cfg = loaded.model, loaded.config
     x = torch.from_numpy(prepare_image(_photo(), cfg.image_spec())[None])
@@ -103,8 +103,8 @@ def _photo_of_an_unseen_chair(seed: int = 0):
 
 def _finds_the_object_in_a_photo(loaded, meta):
     """An unseen chair on held-out photographs: the mask finds it (IoU with the exact mask)."""
-    from model.evaluate import torch_segment
-    from model.preprocess import object_mask
+    from research.evaluate import torch_segment
+    from model.image.mask import object_mask
     from model.train.tasks import TASKS
 
     spec = TASKS["foreground"].spec(loaded.config)
@@ -128,7 +128,8 @@ def test_the_image_bundle_carries_the_shipped_foreground_network():
     from export.bundle import load_bundle
     from export.exporter import FOREGROUND_INT8_AGREEMENT
     from export.runtime import Runtime
-    from model.preprocess import frame_object, mask_input
+    from model.image.frame import frame_object
+    from model.image.mask import mask_input
 
     bundle = load_bundle(BUNDLES / "image-to-shape")
     meta = json.loads((CHECKPOINTS / "foreground" / "model.json").read_text())
@@ -175,7 +176,7 @@ def test_shipped_bundle_is_the_checkpoint_s_export_and_matches_it(name):
     runtime = Runtime(bundle, threads=1)
     guide = None
     if bundle.task == "image-to-shape":
-        from model.preprocess import prepare_image
+        from model.image.frame import prepare_image
         x = prepare_image(_photo(), bundle.image_spec())[None]
         latent, xt = runtime.encode_image(x), torch.from_numpy(x)
     else:

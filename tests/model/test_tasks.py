@@ -57,8 +57,8 @@ def test_build_octree_in_a_given_frame_drops_points_outside_it():
 
 
 def test_completion_training_resumes_and_evaluates_against_the_input_floor(scan_data, tmp_path):
-    from model.evaluate import main as evaluate_main
-    from model.results_table import main as table_main
+    from research.evaluate import main as evaluate_main
+    from research.results_table import main as table_main
 
     straight, summary = trains_and_resumes_identically(scan_data, tmp_path, task="completion",
                                                        structure_loss="balanced")
@@ -95,7 +95,7 @@ def test_completion_training_resumes_and_evaluates_against_the_input_floor(scan_
 
     # the keep_scan bias: chosen on a split, recorded with the run, used by evaluation (carried by
     # export: the guided test below, which exports anyway)
-    from model.calibrate import keep_scan_candidates, main as calibrate_main
+    from research.calibrate import keep_scan_candidates, main as calibrate_main
 
     assert calibrate_main([str(tmp_path / "a"), "--data", str(scan_data), "--split", "train", "--keep-scan",
                            "--limit", "2", "--resolution", "32"]) == 0
@@ -142,7 +142,7 @@ def test_the_missing_part_is_the_same_part_of_a_shape_for_models_of_every_depth(
     0.5/32 beyond are seen, whatever the depth: a depth-7 model is measured on the shipped one's part."""
     from types import SimpleNamespace
 
-    from model.evaluate import MISSING_GAP, _missing
+    from research.evaluate import MISSING_GAP, _missing
 
     assert MISSING_GAP == 2 / 64
     scan = np.stack([np.linspace(-1, 1, 401), np.zeros(401), np.zeros(401)], 1)
@@ -211,7 +211,7 @@ def test_a_streamed_completion_set_gives_the_same_samples_and_batches(scan_data)
 def test_a_streamed_record_set_gives_the_same_samples_image_batches_and_training(tiny_data, tmp_path):
     import shutil
 
-    from model.preprocess import ImageSpec
+    from model.image.frame import ImageSpec
     from model.train.data import RecordSet
     from model.train.images import image_batch
 
@@ -262,7 +262,7 @@ def test_a_streamed_record_set_gives_the_same_samples_image_batches_and_training
 
 
 def test_classify_trains_on_rotations_resumes_and_votes(tiny_data, tmp_path, capsys):
-    from model.evaluate import main as evaluate_main
+    from research.evaluate import main as evaluate_main
     from model.train.classify import ROTATIONS
 
     straight, summary = trains_and_resumes_identically(tiny_data, tmp_path, task="classify")
@@ -324,8 +324,8 @@ def test_completion_needs_a_dataset_with_partial_scans(tiny_data, tmp_path):
 
 
 def test_degradation_table_pairs_settings_and_reads_fewer_views_as_worse_input(scan_data, tmp_path, monkeypatch):
-    import model.degrade as degrade
-    from model.degrade import PartialSettings, main
+    import research.degrade as degrade
+    from research.degrade import PartialSettings, main
 
     # a setting whose holes remove every point: left out of its rows and counted, not a crash
     SETTINGS = (*degrade.SETTINGS, PartialSettings("no points left", views=(1, 1), holes=(9, 9), radius=(2.0, 2.0)))
@@ -350,9 +350,9 @@ def test_guided_completion_reads_the_scans_features_trains_resumes_and_exports(s
     encoder's features; training resumes identically; calibration, evaluation and export follow."""
     from export.bundle import load_bundle
     from export.exporter import export
-    from model.calibrate import main as calibrate_main
+    from research.calibrate import main as calibrate_main
     from model.decode import matched_rows
-    from model.evaluate import main as evaluate_main
+    from research.evaluate import main as evaluate_main
     from model.nn.tensors import OctreeTensors
 
     straight, summary = trains_and_resumes_identically(scan_data, tmp_path, task="completion",
@@ -390,7 +390,7 @@ def test_guided_completion_reads_the_scans_features_trains_resumes_and_exports(s
     res = json.loads(out.read_text())
     assert res["shapes"] == 4 and all(r["chamfer_x1e3"] is not None for r in res["per_shape"])
     # the picture of what the service sends: scan, truth, the fused output, its depth colours
-    from model.figures import TILE, figure
+    from research.figures import TILE, figure
     fused = figure(str(scan_data), [("guided", str(tmp_path / "cal"))], split="train", shapes=2, keep_scan=True)
     alone = figure(str(scan_data), [("guided", str(tmp_path / "cal"))], split="train", shapes=2)
     assert fused.size == alone.size == (4 * TILE, 18 + 2 * TILE)

@@ -130,7 +130,7 @@ def test_train_and_evaluate_commands_end_to_end(tiny_data, tmp_path):
            "--latent", "32", "--structure-loss", "ce", "--pred-hidden", "8", "--quiet"]
     assert subprocess.run(cmd, cwd=REPO, timeout=300).returncode == 0
     out = tmp_path / "results.json"
-    proc = subprocess.run([sys.executable, "-m", "model.evaluate", str(run), "--data", str(tiny_data),
+    proc = subprocess.run([sys.executable, "-m", "research.evaluate", str(run), "--data", str(tiny_data),
                            "--split", "train", "--limit", "3", "--out", str(out), "--resolution", "32",
                            "--mesh-dir", str(tmp_path / "meshes")], cwd=REPO, timeout=300)
     assert proc.returncode == 0
@@ -150,14 +150,14 @@ def test_train_and_evaluate_commands_end_to_end(tiny_data, tmp_path):
         assert 0 <= st["accuracy"] <= 1
     # the oracle decodes the true structure: node counts equal the truth's, shape by shape
     oracle = tmp_path / "oracle.json"
-    proc = subprocess.run([sys.executable, "-m", "model.evaluate", str(run), "--data", str(tiny_data),
+    proc = subprocess.run([sys.executable, "-m", "research.evaluate", str(run), "--data", str(tiny_data),
                            "--split", "train", "--limit", "3", "--out", str(oracle), "--resolution", "32",
                            "--oracle", "structure"], cwd=REPO, timeout=300)
     assert proc.returncode == 0
     for r in json.loads(oracle.read_text())["per_shape"]:
         assert r["decoded_nodes"] == r["truth_nodes"]
     # with the true planes too, the decoded patches are the truth's own: the representation floor
-    from model.evaluate import main as evaluate_main
+    from research.evaluate import main as evaluate_main
     assert evaluate_main([str(run), "--data", str(tiny_data), "--split", "train", "--limit", "3",
                           "--out", str(oracle), "--resolution", "32", "--oracle", "all"]) == 0
     floor = json.loads(oracle.read_text())
@@ -187,7 +187,7 @@ def test_train_rejects_bad_settings_in_one_line(tiny_data, tmp_path, capsys, ext
 def test_damaged_checkpoint_run_folder_and_record_give_one_line_errors(tiny_data, tmp_path, capsys):
     import shutil
 
-    from model.evaluate import main as evaluate_main
+    from research.evaluate import main as evaluate_main
     from model.train.__main__ import main as train_main
 
     base = ["autoencoder", "--data", str(tiny_data), "--depth", "5", "--iters", "1", "--quiet"]
@@ -222,8 +222,8 @@ def test_damaged_checkpoint_run_folder_and_record_give_one_line_errors(tiny_data
 def test_image_training_resumes_and_evaluates_to_a_well_formed_table(tiny_data, tmp_path, decoder):
     """A few steps of shape-from-an-image, killed and resumed to the same weights, then evaluated
     with and without ICP; the results table reads the output."""
-    from model.evaluate import main as evaluate_main
-    from model.results_table import main as table_main
+    from research.evaluate import main as evaluate_main
+    from research.results_table import main as table_main
 
     kw = dict(task="image", arch=decoder, encoder="lenet", encoder_width=4, image_size=32)
     _, summary = trains_and_resumes_identically(tiny_data, tmp_path, **kw)
@@ -346,7 +346,7 @@ def test_image_encoder_regressed_onto_an_autoencoders_latents_uses_its_decoder(t
     with pytest.raises(ValueError, match="channels"):
         Trainer(config(tiny_data, tmp_path / "bad", **{**kw, "channels": 8}))
     # the picture of real outputs: input, truth, the run, its depth colours; one row per category
-    from model.figures import TILE, figure
+    from research.figures import TILE, figure
     img = figure(str(tiny_data), [("student", str(tmp_path / "img"))], split="train", shapes=2)
     assert img.size == (4 * TILE, 18 + 2 * TILE)
     with pytest.raises(ValueError, match="one task"):
@@ -372,8 +372,8 @@ def test_every_validated_step_keeps_its_weights_as_a_checkpoint_folder(tiny_data
         assert torch.equal(final.model.state_dict()[k], v.half().to(v.dtype)), k
     assert not all(torch.equal(early.model.state_dict()[k], final.model.state_dict()[k]) for k in trained)
     # a kept step is calibrated and packaged like a run: the checkpoint chosen on the validation split
-    from model.calibrate import calibrate
-    from model.release import RECIPES, package
+    from research.calibrate import calibrate
+    from research.release import RECIPES, package
 
     report = calibrate(str(tmp_path / "run" / "steps" / "000003"), str(tiny_data), str(tmp_path / "cal"))
     calibrated = load_model(tmp_path / "cal")
@@ -388,7 +388,7 @@ def test_every_validated_step_keeps_its_weights_as_a_checkpoint_folder(tiny_data
 
 
 def test_evaluate_per_category_takes_the_first_shapes_of_each_category(tiny_data, tmp_path):
-    from model.evaluate import first_of_each, main as evaluate_main
+    from research.evaluate import first_of_each, main as evaluate_main
 
     assert first_of_each(["a", "a", "b", "a", "c", "b", "b"], 2).tolist() == [0, 1, 2, 4, 5]
     assert first_of_each(["a", "b"], 1).tolist() == [0, 1] and first_of_each([], 3).tolist() == []
@@ -406,11 +406,11 @@ def test_evaluate_per_category_takes_the_first_shapes_of_each_category(tiny_data
 
 
 def test_a_released_checkpoint_is_stored_in_half_precision_and_evaluated_as_stored(tiny_data, tmp_path):
-    """model.release packages the run's weights as float16; the checkpoint folder loads as float32
+    """research.release packages the run's weights as float16; the checkpoint folder loads as float32
     weights equal to the rounded ones, and its evaluation is recorded in model.json."""
     from model.checkpoint import load_model
-    from model.evaluate import main as evaluate_main
-    from model.release import RECIPES, package, record_evaluation
+    from research.evaluate import main as evaluate_main
+    from research.release import RECIPES, package, record_evaluation
 
     Trainer(config(tiny_data, tmp_path / "run", iters=2)).run()
     out = tmp_path / "shipped"
@@ -423,7 +423,7 @@ def test_a_released_checkpoint_is_stored_in_half_precision_and_evaluated_as_stor
     for k, v in trained.items():
         assert loaded[k].dtype == v.dtype and torch.equal(loaded[k], v.half().to(v.dtype)), k
     assert "keep_scan" not in meta and "mask_guide" not in meta
-    # a decode setting chosen for the run's weights (model.calibrate --keep-scan) goes with them
+    # a decode setting chosen for the run's weights (research.calibrate --keep-scan) goes with them
     chosen = {"empty_bias": {"5": 1.0}, "split": "val"}
     (tmp_path / "run" / "keep_scan.json").write_text(json.dumps(chosen))
     again = package(tmp_path / "run", tiny_data, tmp_path / "again", RECIPES["completion"], ["completion"])
@@ -435,10 +435,10 @@ def test_a_released_checkpoint_is_stored_in_half_precision_and_evaluated_as_stor
 
 
 def test_release_packages_a_run_trained_by_hand_without_claiming_the_recipe(tiny_data, tmp_path, capsys):
-    """model.release --run: the run's own configuration and steps go into model.json, no recipe
+    """research.release --run: the run's own configuration and steps go into model.json, no recipe
     training command; a missing or damaged run or a run of another task is refused (exit 2, one line) before
     anything is built."""
-    from model.release import RECIPES, main as release_main, package
+    from research.release import RECIPES, main as release_main, package
 
     Trainer(config(tiny_data, tmp_path / "run", iters=2)).run()
     meta = package(tmp_path / "run", tiny_data, tmp_path / "shipped", RECIPES["completion"],
@@ -460,11 +460,11 @@ def test_release_packages_a_run_trained_by_hand_without_claiming_the_recipe(tiny
 
 
 def test_release_packages_a_run_with_the_dataset_it_was_trained_on(tiny_data, tmp_path, capsys):
-    """model.release --run RUN --data DIR: nothing is built; DIR's manifest is the provenance and its
+    """research.release --run RUN --data DIR: nothing is built; DIR's manifest is the provenance and its
     test split the evaluation recorded in model.json.  A folder without a manifest or of another depth
     is refused (exit 2, one line) before anything is written."""
     from model.data.dataset import build_dataset, procedural_tasks
-    from model.release import main as release_main
+    from research.release import main as release_main
 
     from .conftest import TINY
 
@@ -497,7 +497,7 @@ def test_provenance_names_a_run_as_the_repository_does(tmp_path, monkeypatch):
     """A teacher trained elsewhere on the disk (/disk/runs/ae7) is recorded as the repository's link
     names it (runs/ae7 for runs -> /disk/runs), a folder inside the repository relative to it; other
     absolute paths, relative paths and None are kept."""
-    from model.release import _named_here
+    from research.release import _named_here
 
     disk, repo = tmp_path / "disk", tmp_path / "repo"
     (disk / "runs" / "ae7").mkdir(parents=True)

@@ -42,7 +42,7 @@ def foreground_models_dir(exported, tmp_path_factory):
     from export.graphs import foreground_graph
     from model.files import sha256_file
     from model.networks.foreground import ForegroundNet
-    from model.preprocess import MaskSpec
+    from model.image.mask import MaskSpec
 
     root = tmp_path_factory.mktemp("foreground-models")
     folder = root / "image-to-shape"

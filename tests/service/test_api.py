@@ -67,7 +67,7 @@ def test_image_to_shape_returns_the_bundle_s_decoded_surface_in_every_format(cli
     mesh = trimesh.load(io.BytesIO(r.content), file_type=fmt, force="mesh", process=False)
     # the same photo through the bundle directly gives the same patches
     bundle = load_bundle(models_dir / "image-to-shape")
-    from model.preprocess import load_and_prepare
+    from model.image.frame import load_and_prepare
     runtime = Runtime(bundle, threads=1)
     octree = runtime.decode(runtime.encode_image(load_and_prepare(photo(), bundle.image_spec())[None]))
     m = surface_mesh(octree, surface)

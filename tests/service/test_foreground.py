@@ -17,7 +17,8 @@ from PIL import Image, ImageDraw
 
 from export.bundle import load_bundle
 from export.runtime import Runtime
-from model.preprocess import REMOVE_BACKGROUND, to_image
+from model.image.frame import REMOVE_BACKGROUND
+from model.image.mask import to_image
 from service.metrics import Metrics, StageTimer
 from service.schemas import RemoveBackground
 

@@ -5,8 +5,8 @@ import json
 
 import pytest
 
-from model.results import join_results
-from model.results_table import main
+from research.results import join_results
+from research.results_table import main
 
 from .test_results_table import results
 

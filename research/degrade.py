@@ -1,6 +1,6 @@
 """How shape completion degrades with the scan: fewer views, more and larger holes, more noise.
 
-    python -m model.degrade RUN [RUN ...] --data DIR --out results.json [--limit-per-category N] [--split test]
+    python -m research.degrade RUN [RUN ...] --data DIR --out results.json [--limit-per-category N] [--split test]
 
 New partial scans are cut from the test shapes' complete virtual scans (rebuilt exactly as the
 dataset build made them) under each setting of :data:`SETTINGS`, with the same random stream per
@@ -22,18 +22,18 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .checkpoint import load_model
-from .data.dataset import BuildConfig, ShapeTask, load_record, scan_shape
-from .data.partial import partial_from_scan
-from .data.shapes import stable_hash
+from model.checkpoint import load_model
+from model.data.dataset import BuildConfig, ShapeTask, load_record, scan_shape
+from model.data.partial import partial_from_scan
+from model.data.shapes import stable_hash
 from .evaluate import MISSING_GAP, decoded_points
-from .files import json_text, write_atomic
-from .octree import scan_frame, scan_octree, validate
-from .octree.batch import merge_octrees
-from .octree.metrics import chamfer_distance, mean_squared_distance, missing_part
-from .octree.pointcloud import MIN_SCAN_POINTS, normalization_of
+from model.files import json_text, write_atomic
+from model.octree import scan_frame, scan_octree, validate
+from model.octree.batch import merge_octrees
+from model.octree.metrics import chamfer_distance, mean_squared_distance, missing_part
+from model.octree.pointcloud import MIN_SCAN_POINTS, normalization_of
 from .results_table import paired_difference
-from .cli import command_parser
+from model.cli import command_parser
 
 
 MIN_POINTS = MIN_SCAN_POINTS
@@ -175,8 +175,8 @@ def markdown(results: dict, labels: list[str]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = command_parser("python -m model.degrade", __doc__, [
-        "python -m model.degrade runs/complete runs/complete-ocnn --data data/procedural --out degrade.json"])
+    ap = command_parser("python -m research.degrade", __doc__, [
+        "python -m research.degrade runs/complete runs/complete-ocnn --data data/procedural --out degrade.json"])
     ap.add_argument("runs", nargs="+", help="completion run or checkpoint folders")
     ap.add_argument("--data", required=True, help="the procedural dataset the runs were trained on")
     ap.add_argument("--out", required=True, help="results JSON")

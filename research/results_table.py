@@ -1,9 +1,9 @@
 """Compare evaluation results: the Table 3 layout in Markdown, and paired per-shape differences.
 
-    python -m model.results_table BASE.json OTHER.json [...] [--bootstrap 10000] [--icp] [--fscore | --missing]
-    python -m model.results_table RESULT.json [...] --surfaces
+    python -m research.results_table BASE.json OTHER.json [...] [--bootstrap 10000] [--icp] [--fscore | --missing]
+    python -m research.results_table RESULT.json [...] --surfaces
 
-Every file is written by ``python -m model.evaluate`` on the same split; ``A.json+B.json`` joins
+Every file is written by ``python -m research.evaluate`` on the same split; ``A.json+B.json`` joins
 one model's results on several splits (the held-out seed's 780 shapes) into one.  Besides the per-category
 table, each result after the first is compared with the first shape by shape: the difference of
 category means with a 95% bootstrap interval (shapes resampled within categories) and how many
@@ -11,10 +11,10 @@ shapes each side wins and how many tie, so that a gap can be told from test-set 
 ICP alignment (results evaluated with ``--icp``); ``--fscore`` the F-score at 1% of the truth's
 diagonal instead (higher is better; after ICP with ``--icp``); ``--missing`` compares completion's
 missing-part distance.  ``--surfaces`` compares, within each result, the closed surface with the
-patches, both sampled by area (``model.evaluate`` measures both surfaces for the image and
+patches, both sampled by area (``research.evaluate`` measures both surfaces for the image and
 completion tasks).  Completion results get a last row: the partial input itself.  Shapes a model decoded to nothing have no
 value and are left out of its pairs; the table counts them.  Results of the foreground network
-(``model.evaluate`` on a foreground model) are compared by mask IoU, where higher is better.
+(``research.evaluate`` on a foreground model) are compared by mask IoU, where higher is better.
 """
 
 from __future__ import annotations
@@ -28,10 +28,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from .cli import command_parser
+from model.cli import command_parser
 from .results import finite, join_results
 
-# The per-shape measure compared, by (--fscore, --icp): the keys model.evaluate writes.
+# The per-shape measure compared, by (--fscore, --icp): the keys research.evaluate writes.
 COMPARED = {(False, False): "chamfer_x1e3", (False, True): "chamfer_icp_x1e3",
             (True, False): "fscore", (True, True): "fscore_icp"}
 
@@ -61,14 +61,14 @@ def load_results(path: str | Path) -> dict:
     except (OSError, EOFError, zlib.error, json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: not a readable results file ({type(exc).__name__})") from None
     if not isinstance(res, dict) or "per_shape" not in res:
-        raise ValueError(f"{path}: no per-shape rows; evaluate again with python -m model.evaluate")
+        raise ValueError(f"{path}: no per-shape rows; evaluate again with python -m research.evaluate")
     return res
 
 
 def load_joined(arg: str) -> dict:
     """The result of one command-line argument: a results JSON, or several joined by ``+``
     (``test.json+val.json+train.json``: one model on the splits of one dataset, see
-    :func:`model.results.join_results`)."""
+    :func:`research.results.join_results`)."""
     if Path(arg).is_file() or "+" not in arg:
         return load_results(arg)
     return join_results([load_results(p) for p in arg.split("+")])
@@ -179,14 +179,14 @@ def surfaces_table(results: list[dict], labels: list[str], draws: int = 10_000) 
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = command_parser("python -m model.results_table", __doc__, [
-        "python -m model.results_table aocnn.json ocnn-patch.json --bootstrap 10000",
-        "python -m model.results_table img.json img-psg.json --icp",
-        "python -m model.results_table img.json img-atlasnet.json --icp --fscore",
-        "python -m model.results_table image.json completion.json --surfaces",
-        "python -m model.results_table base_test.json+base_val.json other_test.json+other_val.json --missing"])
+    ap = command_parser("python -m research.results_table", __doc__, [
+        "python -m research.results_table aocnn.json ocnn-patch.json --bootstrap 10000",
+        "python -m research.results_table img.json img-psg.json --icp",
+        "python -m research.results_table img.json img-atlasnet.json --icp --fscore",
+        "python -m research.results_table image.json completion.json --surfaces",
+        "python -m research.results_table base_test.json+base_val.json other_test.json+other_val.json --missing"])
     ap.add_argument("results", nargs="+",
-                    help="results JSONs of python -m model.evaluate, the first the base; A.json+B.json joins the "
+                    help="results JSONs of python -m research.evaluate, the first the base; A.json+B.json joins the "
                          "results of one model on several splits into one")
     ap.add_argument("--bootstrap", type=int, default=10_000, help="bootstrap draws for the intervals (default 10000)")
     ap.add_argument("--icp", action="store_true", help="compare the Chamfer distances after ICP alignment")

@@ -1,7 +1,7 @@
 """Produce a shipped model from scratch with one resumable command: data, training, split
 calibration, evaluation, and the checkpoint + provenance JSON under ``models/checkpoints/``.
 
-    python -m model.release {image,completion,classify,foreground} --workdir DIR [--out models/checkpoints/<task>]
+    python -m research.release {image,completion,classify,foreground} --workdir DIR [--out models/checkpoints/<task>]
         [--run RUN [--data DIR]]
 
 With ``--run``, an existing run (trained by hand: partly on a GPU, or resumed with other data) is
@@ -25,11 +25,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .files import json_text, sha256_file, write_atomic
-from .cli import command_parser
+from model.files import json_text, sha256_file, write_atomic
+from model.cli import command_parser
 
 if TYPE_CHECKING:
-    from .train.config import TrainConfig
+    from model.train.config import TrainConfig
 
 CHECKPOINT_FORMAT = 1
 
@@ -42,7 +42,7 @@ class Recipe:
     build: list[str]
     train: list[str]
     evaluate: list[str] = field(default_factory=list)
-    calibrate: bool = True          # fold the split-count calibration (model.calibrate) into the weights
+    calibrate: bool = True          # fold the split-count calibration (research.calibrate) into the weights
     teacher: list[str] | None = None  # an autoencoder trained first; ``train`` regresses onto its codes
     refine: list[str] | None = None   # a last image training with the (calibrated) run as its teacher
 
@@ -106,11 +106,11 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
     """Write ``out/model.pt`` (the plain state_dict in half precision) and ``out/model.json``
     (provenance; its evaluation is added by :func:`record_evaluation`, measured on exactly these
     weights).  The decode settings chosen for the run's weights on the validation split
-    (``model.calibrate --keep-scan``, ``--mask-guide``) go with them.  ``by_recipe=False``: the run
+    (``research.calibrate --keep-scan``, ``--mask-guide``) go with them.  ``by_recipe=False``: the run
     was not trained by the recipe's commands, so none are recorded (its configuration and steps
     are); ``data_by_recipe=False``: nor was ``data`` built by its build command (the manifest's
     settings are recorded)."""
-    from .train.config import read_run, write_weights
+    from model.train.config import read_run, write_weights
 
     saved = read_run(run)                  # a run folder, or a checkpoint folder such as a step the run kept
     config = saved.meta["config"]
@@ -126,7 +126,7 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
         "steps": saved.meta["steps"],
         "init": _paths_named_here(_init_of(run)),
         "calibration": calibration,
-        "command": "python -m model.release " + " ".join(shlex.quote(c) for c in command),
+        "command": "python -m research.release " + " ".join(shlex.quote(c) for c in command),
         "train_command": ("python -m model.train " + " ".join(shlex.quote(c) for c in recipe.train)
                           + (" --teacher TEACHER_RUN" if recipe.teacher else "")) if by_recipe else None,
         "teacher_command": ("python -m model.train " + " ".join(shlex.quote(c) for c in recipe.teacher)
@@ -171,7 +171,7 @@ def _paths_named_here(record: dict | None) -> dict | None:
 def _init_of(run: Path) -> dict | None:
     """The weights ``run`` started from (its ``init.json``; a step the run kept, ``RUN/steps/<step>``,
     reads its run's), or None for random weights."""
-    from .train.config import INIT_FILE, STEPS_DIR
+    from model.train.config import INIT_FILE, STEPS_DIR
 
     for folder in (run, run.parent.parent if run.parent.name == STEPS_DIR else None):
         if folder is not None and (folder / INIT_FILE).is_file():
@@ -180,7 +180,7 @@ def _init_of(run: Path) -> dict | None:
 
 
 def record_evaluation(out: Path, results: dict) -> dict:
-    """Add the test figures (``python -m model.evaluate`` of the checkpoint folder ``out``) to its
+    """Add the test figures (``python -m research.evaluate`` of the checkpoint folder ``out``) to its
     model.json, per-shape rows left out."""
     meta = json.loads((out / "model.json").read_text())
     meta["evaluation"] = {k: v for k, v in results.items() if k not in ("per_shape", "run")}
@@ -205,9 +205,9 @@ def _dataset_problem(data: Path, run: Path, config: TrainConfig) -> str | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = command_parser("python -m model.release", __doc__, [
-        "python -m model.release completion --workdir work/completion",
-        "python -m model.release image --workdir work/image --workers 2"])
+    ap = command_parser("python -m research.release", __doc__, [
+        "python -m research.release completion --workdir work/completion",
+        "python -m research.release image --workdir work/image --workers 2"])
     ap.add_argument("model", choices=sorted(RECIPES), help="which shipped model to make")
     ap.add_argument("--workdir", required=True, help="folder for the dataset, the run and its evaluation")
     ap.add_argument("--out", default=None, help="where model.pt and model.json go "
@@ -227,25 +227,25 @@ def main(argv: list[str] | None = None) -> int:
     final = work / "run-calibrated" if recipe.calibrate else run
     out = Path(args.out or Path("models") / "checkpoints" / recipe.task)
     from .calibrate import main as calibrate_main
-    from .data.__main__ import main as build_main
+    from model.data.__main__ import main as build_main
     from .evaluate import main as evaluate_main
-    from .train.__main__ import main as train_main
+    from model.train.__main__ import main as train_main
 
     if args.run is not None:                       # a run trained by hand: checked before anything is built
-        from .train.config import read_run
+        from model.train.config import read_run
         final = Path(args.run)
         try:
             config = read_run(final).config
         except (FileNotFoundError, ValueError) as exc:
-            print(f"python -m model.release: --run: {exc}", file=sys.stderr)
+            print(f"python -m research.release: --run: {exc}", file=sys.stderr)
             return 2
         if config.task != recipe.train[0]:
-            print(f"python -m model.release: {final} is a {config.task} run, not a {recipe.train[0]} run", file=sys.stderr)
+            print(f"python -m research.release: {final} is a {config.task} run, not a {recipe.train[0]} run", file=sys.stderr)
             return 2
     if args.data is not None:
         problem = _dataset_problem(data, final, config) if args.run is not None else "--data goes with --run"
         if problem:
-            print(f"python -m model.release: {problem}", file=sys.stderr)
+            print(f"python -m research.release: {problem}", file=sys.stderr)
             return 2
     threads = ["--threads", str(args.threads), "--quiet"]
     steps = [] if args.data else [(build_main, ["build", "--out", str(data), "--workers", str(args.workers),

@@ -2,14 +2,14 @@
 loss against the step, one panel per term, every run in its own colour; with ``--chamfer``, also
 the validation Chamfer distance of every validated step.
 
-    python -m model.curves RUN [RUN ...] --out PNG [--labels NAME ...] [--terms total ...] [--window 50]
+    python -m research.curves RUN [RUN ...] --out PNG [--labels NAME ...] [--terms total ...] [--window 50]
         [--chamfer DATA [--per-category 4] [--resolution 128]]
 
 Reads each run folder's ``metrics.jsonl`` (written by ``python -m model.train``: a row per logged
 training step and per validation).  A run that was interrupted and resumed logs some steps twice;
 the last row of each (split, step) counts.  The legend gives each run's last step and its
 training time.  ``--chamfer DATA`` measures the weights kept at each validated step
-(``RUN/steps/<step>/``) with :func:`model.evaluate.evaluate` on the first ``--per-category``
+(``RUN/steps/<step>/``) with :func:`research.evaluate.evaluate` on the first ``--per-category``
 validation shapes of each category of DATA (the panel ``chamfer_x1e3``: category mean x 10^3), keeps
 each figure beside its weights (``chamfer.json``, reused while weights and settings are the same) and
 prints the step with the lowest: the checkpoint chosen on the validation split.
@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli import command_parser
-from .files import atomic_path
+from model.cli import command_parser
+from model.files import atomic_path
 
 NOT_TERMS = {"step", "split", "lr", "seconds"}
 
@@ -95,8 +95,8 @@ def validation_chamfer(run: str | Path, data: str | Path, per_category: int = 4,
     as served on the shapes' photo-like views instead, their backgrounds removed by this foreground
     network (``evaluate(photos=True, foreground=...)``), kept in ``chamfer-photos.json``."""
     from .evaluate import evaluate
-    from .files import json_text, sha256_file, write_atomic
-    from .train.config import STEPS_DIR
+    from model.files import json_text, sha256_file, write_atomic
+    from model.train.config import STEPS_DIR
 
     manifest = Path(data) / "manifest.json"
     if not manifest.is_file():
@@ -134,7 +134,7 @@ def foreground_fingerprint(foreground: str | Path) -> dict:
     ValueError if ``foreground`` is no foreground network's run or checkpoint folder."""
     import hashlib
 
-    from .train.config import read_run
+    from model.train.config import read_run
 
     saved = read_run(foreground)
     if saved.config.task != "foreground":
@@ -239,8 +239,8 @@ def plot(curves: list[RunCurves], out: str | Path, terms: list[str] | None = Non
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = command_parser("python -m model.curves", __doc__, [
-        "python -m model.curves runs/completion runs/completion-skips --out curves.png"])
+    ap = command_parser("python -m research.curves", __doc__, [
+        "python -m research.curves runs/completion runs/completion-skips --out curves.png"])
     ap.add_argument("runs", nargs="+", help="run folders of python -m model.train")
     ap.add_argument("--out", required=True, help="PNG to write")
     ap.add_argument("--labels", nargs="+", default=None, help="a name per run (default: the folder names)")
@@ -251,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--per-category", type=int, default=4,
                     help="with --chamfer: validation shapes per category (default 4)")
     ap.add_argument("--resolution", type=int, default=128,
-                    help="with --chamfer: the patch sampling grid (default 128, model.evaluate's)")
+                    help="with --chamfer: the patch sampling grid (default 128, research.evaluate's)")
     args = ap.parse_args(argv)
     try:
         if args.labels is not None and len(args.labels) != len(args.runs):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from model.align import icp, rigid_fit
+from research.align import icp, rigid_fit
 from model.data.shapes import generate
 from model.octree.metrics import chamfer_distance
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from model.curves import log_scale, main, moving_average, read_curves
+from research.curves import log_scale, main, moving_average, read_curves
 
 
 def _write_run(folder, rows) -> None:
@@ -80,9 +80,9 @@ def test_the_picture_has_a_panel_per_term_and_bad_input_exits_2(tmp_path, capsys
 
 def test_chamfer_measures_each_kept_step_once_and_names_the_lowest(tiny_data, tmp_path, capsys, monkeypatch):
     """--chamfer: every validated step's weights measured on the validation split's first shapes of
-    each category, as model.evaluate measures them; kept beside the weights and reused while the
+    each category, as research.evaluate measures them; kept beside the weights and reused while the
     settings are the same; a panel of its own; the step with the lowest figure named."""
-    from model.evaluate import evaluate
+    from research.evaluate import evaluate
     from model.train.loop import TrainConfig, Trainer
 
     run = tmp_path / "run"
@@ -107,7 +107,7 @@ def test_chamfer_measures_each_kept_step_once_and_names_the_lowest(tiny_data, tm
     ratio = Image.open(tmp_path / "c.png").width / Image.open(tmp_path / "loss.png").width
     assert ratio == pytest.approx((panels + 1) / panels, rel=0.05)                # one more panel: the Chamfer's
     calls = []
-    monkeypatch.setattr("model.evaluate.evaluate", lambda *a, **k: calls.append(a) or evaluate(*a, **k))
+    monkeypatch.setattr("research.evaluate.evaluate", lambda *a, **k: calls.append(a) or evaluate(*a, **k))
     assert main([*args, "--out", str(tmp_path / "again.png")]) == 0 and calls == []   # reused, not measured again
     assert main([*args[:-1], "32", "--out", str(tmp_path / "finer.png")]) == 0      # new settings: measured again
     assert len(calls) == 2

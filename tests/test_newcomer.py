@@ -8,7 +8,7 @@ import numpy as np
 
 from model.files import UMASK, atomic_path, write_atomic
 from model.octree.patches import DEPTH_COLORS
-from model.results_table import main as table_main
+from research.results_table import main as table_main
 
 
 def test_atomic_files_get_the_umask_mode_not_0600(tmp_path):

@@ -1,8 +1,8 @@
 """Decode-time calibration of an octree decoder's split decisions.
 
-    python -m model.calibrate RUN --data DIR --out CALIBRATED_RUN [--split val]
-    python -m model.calibrate COMPLETION_RUN --data DIR --keep-scan [--split val] [--per-category N]
-    python -m model.calibrate FOREGROUND_RUN --data DIR --mask-guide [--split val]
+    python -m research.calibrate RUN --data DIR --out CALIBRATED_RUN [--split val]
+    python -m research.calibrate COMPLETION_RUN --data DIR --keep-scan [--split val] [--per-category N]
+    python -m research.calibrate FOREGROUND_RUN --data DIR --mask-guide [--split val]
 
 A class-balanced structure loss makes the *split* class survive, at the price of predicting it
 more often than it occurs where the network cannot tell *split* from *leaf* (the depth-5
@@ -18,7 +18,7 @@ image bundle.
 
 ``--keep-scan`` (completion models) chooses, on the validation split, the bias towards *empty*
 that the decoder uses when the output keeps the scan's own patches (:func:`calibrate_keep_scan`);
-export carries it into the bundle, and the service and ``model.evaluate --keep-scan`` use it.
+export carries it into the bundle, and the service and ``research.evaluate --keep-scan`` use it.
 """
 
 from __future__ import annotations
@@ -30,20 +30,20 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .files import atomic_path, json_text, write_atomic
-from .networks import OctreeDecoder
-from .networks.decoder import teacher_skips
-from .nn.tensors import OctreeTensors
-from .octree import SPLIT
-from .checkpoint import load_model
+from model.files import atomic_path, json_text, write_atomic
+from model.networks import OctreeDecoder
+from model.networks.decoder import teacher_skips
+from model.nn.tensors import OctreeTensors
+from model.octree import SPLIT
+from model.checkpoint import load_model
 from .evaluate import MISSING_GAP, decoded_points, split_subset
 from .results import category_means
-from .octree.metrics import Reference, mean_squared_distance, missing_part
+from model.octree.metrics import Reference, mean_squared_distance, missing_part
 from .results_table import paired_difference
-from .train.completion import truth_view
-from .train.config import KEEP_SCAN_FILE, MASK_GUIDE_FILE, load_checkpoint, write_weights
-from .train.tasks import TASKS, encode_with_guide
-from .cli import command_parser
+from model.train.completion import truth_view
+from model.train.config import KEEP_SCAN_FILE, MASK_GUIDE_FILE, load_checkpoint, write_weights
+from model.train.tasks import TASKS, encode_with_guide
+from model.cli import command_parser
 
 BIASES = np.round(np.arange(-4.0, 4.0001, 0.05), 2)
 
@@ -151,7 +151,7 @@ def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int
     choice: among the settings whose fused outputs' Chamfer distance (category mean) is not
     significantly above the lowest's (its paired 95% bootstrap interval over the shapes,
     ``draws`` draws, reaches 0), the one closest to the missing part (the completion's own
-    measure, :data:`model.evaluate.MISSING_GAP`).  ``limit``: the first shapes of the
+    measure, :data:`research.evaluate.MISSING_GAP`).  ``limit``: the first shapes of the
     split only; ``per_category``: of those, the first so many of each category (a subset every
     category is in: each candidate decodes every shape, which at depth 7 costs hours on the whole
     split); ``resolution``: the patch sampling grid."""
@@ -235,20 +235,20 @@ def record_with_run(run: str, meta: dict, key: str, filename: str, report: dict)
 
 MASK_GUIDE_RADII = (0.0, 1.0, 2.0, 3.0, 4.0)
 """Guided-filter radii tried by ``--mask-guide``, in the foreground network's pixels (0: none); whole
-pixels, since the filter's windows are on the network's grid (:func:`model.preprocess.to_image`)."""
+pixels, since the filter's windows are on the network's grid (:func:`model.image.mask.to_image`)."""
 MASK_GUIDE_EPS = (1e-5, 3e-5, 1e-4, 3e-4)
 """Guided-filter regularisers tried by ``--mask-guide`` (the guide is the grey image in [0, 1])."""
 
 
 def calibrate_mask_guide(run: str, data: str, split: str = "val", limit: int | None = None) -> dict:
-    """Choose the guided filter of a foreground network's masks (:class:`model.preprocess.MaskSpec`
+    """Choose the guided filter of a foreground network's masks (:class:`model.image.mask.MaskSpec`
     ``guide``, ``guide_eps``) by the category-mean mask IoU of the split's photo-like views through
     the service's path, and record it with the run (model.json's ``mask_guide`` of a checkpoint
     folder, else mask_guide.json of the run folder).  The network runs in torch, once per distinct
     image (looks repeat across candidates)."""
     import dataclasses
 
-    from .data.photos import photo_split_view
+    from model.data.photos import photo_split_view
     from .evaluate import mask_ious, torch_segment
 
     loaded = load_model(run)
@@ -284,8 +284,8 @@ def calibrate_mask_guide(run: str, data: str, split: str = "val", limit: int | N
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = command_parser("python -m model.calibrate", __doc__, [
-        "python -m model.calibrate runs/img --data data/procedural --out runs/img-cal"])
+    ap = command_parser("python -m research.calibrate", __doc__, [
+        "python -m research.calibrate runs/img --data data/procedural --out runs/img-cal"])
     ap.add_argument("run", help="run folder or checkpoint folder (such as RUN/steps/<step>) of an aocnn decoder "
                     "(autoencoder, image or completion model); with --mask-guide of a foreground network")
     ap.add_argument("--data", required=True, help="dataset folder the run was trained on")

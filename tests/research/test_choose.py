@@ -9,8 +9,8 @@ import math
 import pytest
 import torch
 
-from model.choose import choose, main
-from model.curves import lowest_step
+from research.choose import choose, main
+from research.curves import lowest_step
 
 
 def test_lowest_step_skips_empty_outputs_and_takes_the_earlier_on_a_tie():

@@ -1,11 +1,11 @@
 """Choose a run's checkpoint on the validation split: of the weights it kept at its validated
 steps (``RUN/steps/<step>/``), the step with the lowest validation Chamfer distance, copied to a
 checkpoint folder that every command taking a run reads (``--teacher``, ``--init``,
-``model.calibrate``, ``model.evaluate``, ``model.release --run``).
+``research.calibrate``, ``research.evaluate``, ``research.release --run``).
 
-    python -m model.choose RUN --data DATA --out FOLDER [--per-category 4] [--resolution 128] [--photos FG]
+    python -m research.choose RUN --data DATA --out FOLDER [--per-category 4] [--resolution 128] [--photos FG]
 
-The figures are :func:`model.curves.validation_chamfer`'s (measured once, kept beside each step's
+The figures are :func:`research.curves.validation_chamfer`'s (measured once, kept beside each step's
 weights).  ``--photos FG`` (image models): measured as served on the validation shapes' photo-like
 views, their backgrounds removed by the foreground network FG, for a model trained for photographs.
 Ties go to the earlier step.  ``FOLDER/model.json`` is the step's own, with ``chosen`` added: the
@@ -20,9 +20,9 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from .cli import command_parser
+from model.cli import command_parser
 from .curves import lowest_step, validation_chamfer
-from .files import atomic_path, json_text, write_atomic
+from model.files import atomic_path, json_text, write_atomic
 
 
 @dataclass(frozen=True)
@@ -36,9 +36,9 @@ class Choice:
 def choose(run: str | Path, data: str | Path, out: str | Path, per_category: int = 4,
            resolution: int = 128, foreground: str | Path | None = None) -> Choice:
     """Measure ``run``'s kept steps on ``data``'s validation split (with ``foreground``: on its
-    photo-like views, as :func:`model.curves.validation_chamfer`) and copy the best to ``out``
+    photo-like views, as :func:`research.curves.validation_chamfer`) and copy the best to ``out``
     (weights first, then ``model.json``: a folder without ``model.json`` is no checkpoint)."""
-    from .train.config import STEPS_DIR
+    from model.train.config import STEPS_DIR
 
     run, out = Path(run), Path(out)
     if not (run / STEPS_DIR).is_dir():
@@ -65,8 +65,8 @@ def choose(run: str | Path, data: str | Path, out: str | Path, per_category: int
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = command_parser("python -m model.choose", __doc__, [
-        "python -m model.choose runs/ae7 --data data/procedural7 --out runs/ae7-best"])
+    ap = command_parser("python -m research.choose", __doc__, [
+        "python -m research.choose runs/ae7 --data data/procedural7 --out runs/ae7-best"])
     ap.add_argument("run", help="a run folder of python -m model.train (its steps/ are the candidates)")
     ap.add_argument("--data", required=True, help="the dataset whose validation split decides")
     ap.add_argument("--out", required=True, help="checkpoint folder to write (model.pt + model.json)")

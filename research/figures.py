@@ -1,6 +1,6 @@
 """Pictures of real outputs for docs/RESULTS.md, drawn with the project's own renderer.
 
-    python -m model.figures --data DIR --runs NAME=RUN [NAME=RUN ...] --out PNG [--split test]
+    python -m research.figures --data DIR --runs NAME=RUN [NAME=RUN ...] --out PNG [--split test]
                             [--shapes 6] [--categories car chair ...] [--keep-scan]
 
 One row per test shape: the input (the encoder's view for image models, the partial scan for
@@ -21,15 +21,15 @@ import torch
 import trimesh
 from PIL import Image, ImageDraw
 
-from .data.render import render
-from .checkpoint import load_model
-from .decode import Guide, empty_bias_of
+from model.data.render import render
+from model.checkpoint import load_model
+from model.decode import Guide, empty_bias_of
 from .evaluate import ATLAS_GRID, decoded_points
-from .networks import AtlasNetDecoder, OctreeDecoder
-from .octree.patches import DEPTH_COLORS, patches_to_mesh
-from .train.images import eval_view
-from .train.tasks import TASKS, encode_with_guide
-from .cli import command_parser
+from model.networks import AtlasNetDecoder, OctreeDecoder
+from model.octree.patches import DEPTH_COLORS, patches_to_mesh
+from model.train.images import eval_view
+from model.train.tasks import TASKS, encode_with_guide
+from model.cli import command_parser
 
 TILE = 160
 VIEW = dict(azimuth_deg=35.0, elevation_deg=25.0, distance=2.6)
@@ -62,7 +62,7 @@ def depth_colors(mesh: trimesh.Trimesh) -> np.ndarray:
 def output_mesh(model, latent: torch.Tensor, resolution: int = 64, guide: Guide | None = None,
                 scans: list | None = None, empty_bias: dict[int, float] | None = None) -> list[tuple[trimesh.Trimesh, trimesh.Trimesh | None]]:
     """Per shape: the decoded surface as a mesh, and for octree decoders the depth-coloured patches
-    (``guide``, ``scans`` and ``empty_bias`` as :func:`model.evaluate.decoded_points`')."""
+    (``guide``, ``scans`` and ``empty_bias`` as :func:`research.evaluate.decoded_points`')."""
     dec = model.decoder
     if isinstance(dec, AtlasNetDecoder):
         with torch.no_grad():
@@ -137,8 +137,8 @@ def figure(data: str, runs: list[tuple[str, str]], split: str = "test", shapes: 
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = command_parser("python -m model.figures", __doc__, [
-        "python -m model.figures --data data/procedural --runs aocnn=runs/img psg=runs/img-psg --out fig.png"])
+    ap = command_parser("python -m research.figures", __doc__, [
+        "python -m research.figures --data data/procedural --runs aocnn=runs/img psg=runs/img-psg --out fig.png"])
     ap.add_argument("--data", required=True, help="dataset folder the runs were trained on")
     ap.add_argument("--runs", nargs="+", required=True, help="NAME=RUN_FOLDER, the first one is coloured by depth")
     ap.add_argument("--out", required=True, help="PNG to write")

@@ -1,6 +1,6 @@
 """Evaluate a trained network with the paper's protocol (sections 5.2 and 5.3).
 
-    python -m model.evaluate RUN --data DIR [--split test] --out results.json [--mesh-dir DIR]
+    python -m research.evaluate RUN --data DIR [--split test] --out results.json [--mesh-dir DIR]
                              [--resolution 128] [--limit N] [--per-category N] [--oracle structure|all] [--icp]
                              [--bundle BUNDLE_DIR]
                              [--photos [--remove-background auto|true|false] [--foreground FG | --exact-masks]]
@@ -42,26 +42,26 @@ import torch
 import trimesh
 
 from .align import icp
-from .checkpoint import load_model
-from .decode import Guide, decode, empty_bias_of
-from .files import json_text, write_atomic
-from .networks import AtlasNetDecoder, OctreeDecoder, PointSetDecoder, TorchSteps
-from .networks.decoder import teacher_skips
-from .nn.tensors import OctreeTensors
-from .octree import LEAF, Octree
-from .octree.metrics import Reference, mean_squared_distance, missing_part, sample_patches
-from .octree.batch import split_octree
+from model.checkpoint import load_model
+from model.decode import Guide, decode, empty_bias_of
+from model.files import json_text, write_atomic
+from model.networks import AtlasNetDecoder, OctreeDecoder, PointSetDecoder, TorchSteps
+from model.networks.decoder import teacher_skips
+from model.nn.tensors import OctreeTensors
+from model.octree import LEAF, Octree
+from model.octree.metrics import Reference, mean_squared_distance, missing_part, sample_patches
+from model.octree.batch import split_octree
 from .results import category_means
-from .octree.fuse import keep_scan
-from .octree.symmetry import MIN_SUPPORT
-from .preprocess import MaskSpec
-from .surface import DEFAULT_SURFACE, SURFACES, surface_mesh
-from .train.config import TrainConfig
-from .train.data import manifest_rows
-from .train.images import image_batch, photo_batch
-from .train.completion import truth_view
-from .train.tasks import TASKS, encode_with_guide
-from .cli import command_parser
+from model.octree.fuse import keep_scan
+from model.octree.symmetry import MIN_SUPPORT
+from model.image.mask import MaskSpec
+from model.surface import DEFAULT_SURFACE, SURFACES, surface_mesh
+from model.train.config import TrainConfig
+from model.train.data import manifest_rows
+from model.train.images import image_batch, photo_batch
+from model.train.completion import truth_view
+from model.train.tasks import TASKS, encode_with_guide
+from model.cli import command_parser
 
 
 ORACLES = ("none", "structure", "all")
@@ -408,7 +408,7 @@ def evaluate_classifier(model, cfg: TrainConfig, run: str, split: str = "test", 
     and voted over the 12 rotations about the up axis (mean of the softmax), per category, with
     the confusion matrix.  ``runtime``: the exported bundle's onnxruntime sessions run instead of
     the torch model (``bundle`` is its folder, reported)."""
-    from .octree.geometry import ROTATIONS
+    from model.octree.geometry import ROTATIONS
 
     task = TASKS[cfg.task]
     records = task.dataset(cfg, split, 0, limit=limit)
@@ -444,7 +444,7 @@ def evaluate_classifier(model, cfg: TrainConfig, run: str, split: str = "test", 
 def torch_segment(model, spec):
     """The foreground network of a loaded model in torch, as :meth:`export.runtime.Runtime.segment`
     runs its graph: an (H, W, 3) uint8 image to its object probability on the network's grid."""
-    from .preprocess import mask_input, mask_output
+    from model.image.mask import mask_input, mask_output
 
     def segment(rgb: np.ndarray) -> np.ndarray:
         with torch.no_grad():
@@ -455,7 +455,7 @@ def torch_segment(model, spec):
 
 def foreground_in_torch(checkpoint: str) -> tuple:
     """A foreground network's checkpoint or run folder, in torch: (its ``segment`` function, as
-    :func:`torch_segment`; its :class:`~model.preprocess.MaskSpec`, with the guided filter
+    :func:`torch_segment`; its :class:`~model.image.mask.MaskSpec`, with the guided filter
     calibrated for it): the background removal of the bundle it would be exported into."""
     loaded = load_model(checkpoint)
     if loaded.config.task != "foreground":
@@ -466,9 +466,9 @@ def foreground_in_torch(checkpoint: str) -> tuple:
 
 def mask_ious(photos: list, segment, spec) -> list[float]:
     """Mask IoU of each photo (a :class:`model.data.photos.Photo`) through the service's path
-    (:func:`model.preprocess.object_mask` with ``segment`` and ``spec``), at its own resolution;
+    (:func:`model.image.mask.object_mask` with ``segment`` and ``spec``), at its own resolution;
     0 where nothing is found."""
-    from .preprocess import NoObjectError, mask_iou, object_mask
+    from model.image.mask import mask_iou, NoObjectError, object_mask
 
     out = []
     for photo in photos:
@@ -484,11 +484,11 @@ def evaluate_foreground(model, cfg: TrainConfig, run: str, split: str = "test", 
                         runtime=None, bundle: str | None = None, meta: dict | None = None) -> dict:
     """Mask IoU of the foreground network on each shape's photo-like test view (a render on a
     held-out background, no alpha: :func:`model.data.photos.photo_split_view`), at the photo's own
-    resolution, through the service's path (:func:`model.preprocess.object_mask`: the guided filter,
+    resolution, through the service's path (:func:`model.image.mask.object_mask`: the guided filter,
     clean-up, a second pass on a small object in a large photo; a photo where it finds nothing
     scores 0); per category and overall, with the share of photos above 0.9.  ``meta``: the run's
     provenance (its calibrated guided filter), for the network in torch."""
-    from .data.photos import photo_split_view
+    from model.data.photos import photo_split_view
 
     spec = runtime.bundle.mask_spec() if runtime is not None else TASKS[cfg.task].spec(cfg, meta)
     segment = runtime.segment if runtime is not None else torch_segment(model, spec)
@@ -522,9 +522,9 @@ def status_summary(confusion: np.ndarray) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = command_parser("python -m model.evaluate", __doc__, [
-        "python -m model.evaluate runs/aocnn --data data/procedural --split test --out results.json",
-        "python -m model.evaluate models/checkpoints/completion --data data/procedural --bundle models/bundles/completion --out c.json"])
+    ap = command_parser("python -m research.evaluate", __doc__, [
+        "python -m research.evaluate runs/aocnn --data data/procedural --split test --out results.json",
+        "python -m research.evaluate models/checkpoints/completion --data data/procedural --bundle models/bundles/completion --out c.json"])
     ap.add_argument("run", help="run folder of python -m model.train (holds checkpoint.pt) or a checkpoint "
                     "folder (model.pt + model.json)")
     ap.add_argument("--data", required=True, help="dataset folder built by python -m model.data build")

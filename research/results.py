@@ -1,4 +1,4 @@
-"""Evaluation results as ``python -m model.evaluate`` writes them: per-category means, and the
+"""Evaluation results as ``python -m research.evaluate`` writes them: per-category means, and the
 results of one model on several splits of a dataset joined into one (a held-out seed's 780 shapes
 are evaluated split by split).
 

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import torch
 
-from model.calibrate import calibrate, matching_bias, split_logits
+from research.calibrate import calibrate, matching_bias, split_logits
 from model.checkpoint import load_model
 from model.octree import SPLIT
 from model.train.loop import TrainConfig, Trainer
@@ -49,7 +49,7 @@ def test_calibrated_copy_differs_only_in_split_biases_and_matches_counts(tiny_da
 
 
 def test_keep_scan_takes_the_least_missing_part_among_settings_tied_on_chamfer():
-    from model.calibrate import choose_keep_scan
+    from research.calibrate import choose_keep_scan
 
     rng = np.random.default_rng(0)
     shapes = [(c, f"{c}{i}") for c in ("chair", "lamp") for i in range(30)]

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from model.preprocess import ImageError, ImageSpec, decode_image, load_and_prepare, object_box, prepare_image
+from model.image.decode import decode_image, ImageError
+
+from model.image.frame import ImageSpec, load_and_prepare, object_box, prepare_image
 
 SPEC = ImageSpec(size=32)
 
@@ -133,7 +135,7 @@ def test_not_an_image_truncated_and_bombs_are_clear_errors(tmp_path):
 
 def test_composite_is_the_rounded_blend_for_every_colour_alpha_and_background():
     """The integer blend equals round(c a + b (1 - a)), a = alpha / 255, for all 256^3 triples."""
-    from model.preprocess import composite
+    from model.image.frame import composite
 
     c, a = np.meshgrid(np.arange(256), np.arange(256), indexing="ij")     # colour x alpha
     rgba = np.dstack([c, c, c, a]).astype(np.uint8)
@@ -147,7 +149,7 @@ def test_composite_is_the_rounded_blend_for_every_colour_alpha_and_background():
 
 
 def test_rgb_of_drops_the_alpha_and_is_contiguous():
-    from model.preprocess import rgb_of
+    from model.image.frame import rgb_of
 
     rgba = np.random.default_rng(0).integers(0, 256, (7, 5, 4), dtype=np.uint8)
     rgb = rgb_of(rgba)
@@ -162,7 +164,7 @@ def _encode(img: Image.Image, fmt: str, **kw) -> bytes:
 
 
 def test_decode_photo_reduces_a_large_photo_to_the_working_size_and_keeps_its_upload_size():
-    from model.preprocess import decode_photo
+    from model.image.decode import decode_photo
 
     rng = np.random.default_rng(0)
     small = rng.integers(0, 256, (30, 40, 3), dtype=np.uint8)
@@ -179,7 +181,7 @@ def test_decode_photo_reduces_a_large_photo_to_the_working_size_and_keeps_its_up
 
 
 def test_decode_photo_size_follows_the_exif_rotation():
-    from model.preprocess import decode_photo
+    from model.image.decode import decode_photo
 
     img = Image.fromarray(np.zeros((1200, 1800, 3), np.uint8))
     exif = Image.Exif()
@@ -189,7 +191,7 @@ def test_decode_photo_size_follows_the_exif_rotation():
 
 
 def test_reducing_a_transparent_image_does_not_bleed_the_hidden_colour():
-    from model.preprocess import decode_photo
+    from model.image.decode import decode_photo
 
     rgba = np.zeros((1000, 1000, 4), np.uint8)
     rgba[..., 0] = 255                                          # hidden red under full transparency
@@ -201,7 +203,7 @@ def test_reducing_a_transparent_image_does_not_bleed_the_hidden_colour():
 
 
 def test_upload_box_and_mask_scale_back_to_the_uploaded_image():
-    from model.preprocess import Framed, upload_box, upload_mask
+    from model.image.frame import Framed, upload_box, upload_mask
 
     mask = np.zeros((100, 150), np.uint8)
     mask[20:40, 30:61] = 255

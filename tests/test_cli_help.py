@@ -49,23 +49,23 @@ def undocumented(parser, prefix=""):
 
 def _mains():
     from model.data.__main__ import main as data_main
-    from model.evaluate import main as evaluate_main
-    from model.figures import main as figures_main
-    from model.curves import main as curves_main
-    from model.choose import main as choose_main
+    from research.evaluate import main as evaluate_main
+    from research.figures import main as figures_main
+    from research.curves import main as curves_main
+    from research.choose import main as choose_main
     from model.octree.__main__ import main as octree_main
-    from model.release import main as release_main
-    from model.results_table import main as table_main
+    from research.release import main as release_main
+    from research.results_table import main as table_main
     from model.train.__main__ import main as train_main
     from export.__main__ import main as export_main
     from export.quantize import main as quantize_main
     from service.__main__ import main as service_main
-    from model.calibrate import main as calibrate_main
+    from research.calibrate import main as calibrate_main
     from bench.onnx_decode import main as bench_onnx_main
     from bench.load import main as bench_load_main
     from bench.octree_scaling import main as bench_scaling_main
     from bench.train_step import main as bench_step_main
-    from model.degrade import main as degrade_main
+    from research.degrade import main as degrade_main
     from model.data.contact_sheet import main as sheet_main
     from bench.conv import main as bench_conv_main
     from bench.coverage import main as bench_coverage_main
@@ -75,13 +75,13 @@ def _mains():
     from bench.symmetry import main as bench_symmetry_main
     return {"model.data.contact_sheet": sheet_main, "bench.conv": bench_conv_main, "bench.coverage": bench_coverage_main,
             "bench.octree_build": bench_build_main, "bench.octree_label_changes": bench_labels_main,
-            "bench.octree_versions": bench_versions_main, "bench.symmetry": bench_symmetry_main, "model.train": train_main, "model.evaluate": evaluate_main, "model.data": data_main,
-            "model.octree": octree_main, "model.results_table": table_main, "model.figures": figures_main,
-            "model.curves": curves_main, "model.choose": choose_main,
-            "model.release": release_main, "model.calibrate": calibrate_main, "export": export_main,
+            "bench.octree_versions": bench_versions_main, "bench.symmetry": bench_symmetry_main, "model.train": train_main, "research.evaluate": evaluate_main, "model.data": data_main,
+            "model.octree": octree_main, "research.results_table": table_main, "research.figures": figures_main,
+            "research.curves": curves_main, "research.choose": choose_main,
+            "research.release": release_main, "research.calibrate": calibrate_main, "export": export_main,
             "export.quantize": quantize_main, "service": service_main, "bench.onnx_decode": bench_onnx_main,
             "bench.load": bench_load_main, "bench.octree_scaling": bench_scaling_main,
-            "bench.train_step": bench_step_main, "model.degrade": degrade_main}
+            "bench.train_step": bench_step_main, "research.degrade": degrade_main}
 
 
 @pytest.mark.parametrize("name", sorted(_mains()))

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from model.results_table import main, markdown_table, paired_difference
+from research.results_table import main, markdown_table, paired_difference
 
 
 def results(values: dict[str, list[float]], arch="aocnn") -> dict:

@@ -1,0 +1,2 @@
+"""Images in: decoding (:mod:`.decode`), the object's mask in a photo (:mod:`.mask`) and framing
+for the image encoder (:mod:`.frame`)."""

@@ -1,0 +1,265 @@
+"""The object's mask in an opaque photo: the foreground network's input and output, the guided
+filter that brings its grid to the photo's pixels, the clean-up, the second look at a small
+object, and the refinement network's look at the object's square.  One path for training,
+evaluation, the CLI and the service.  NumPy, SciPy and Pillow only (no torch); the networks are
+passed in as callables."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from PIL import Image
+from scipy import ndimage
+
+from .decode import ImageError
+
+class NoObjectError(ImageError):
+    """The image shows no object to reconstruct (the mask is empty or too small)."""
+
+
+@dataclass(frozen=True)
+class MaskSpec:
+    """How the foreground network takes an image: the whole image resized to ``size`` x ``size``
+    (stretched: the network is trained on photos of many aspect ratios), normalised as the
+    encoder's images.  ``min_area``: the share of the image the object must cover to count as
+    found; ``keep``: mask components smaller than this share of the largest are dropped;
+    ``refine``: when the object's square (its box's longest side grown by ``refine_margin`` on each
+    side) covers less than this share of the image and has at least ``refine_min`` pixels a side,
+    the network runs a second time on that square, so that a small object in a large photo is seen at
+    the network's full resolution (0: never); ``refine_min``: the smallest square side looked at
+    again (None: ``size``).  A network trained without second looks' views keeps the default: a
+    smaller square, enlarged to ``size``, is blurred as none of its training photos is, and its
+    second mask was worse than the first (validation IoU 0.814 against 0.836 without those second
+    looks, docs/RESULTS.md).  ``guide``: the radius, in the network's pixels, of the guided filter
+    that brings each look's mask from the network's grid to the image's resolution
+    (:func:`guided_filter`, with the regulariser ``guide_eps``; 0: none, the mask is resized;
+    on the 128² grid the radius is rounded to whole pixels), which brings back the edges and thin
+    parts that the network's 128² loses; chosen on the validation split by ``python -m
+    research.calibrate --mask-guide``.  ``crop_size``: the refinement network's input side (0: none):
+    after the first mask, the object's square (its box's longest side grown by ``crop_margin`` on
+    each side) is segmented again at ``crop_size``² with the first mask as a fourth channel
+    (:func:`crop_input`), so that a thin part several photo pixels wide is several network pixels
+    wide, and the refined mask replaces the first."""
+
+    size: int = 128
+    mean: tuple[float, float, float] = (0.5, 0.5, 0.5)
+    std: tuple[float, float, float] = (0.25, 0.25, 0.25)
+    min_area: float = 0.002
+    keep: float = 0.1
+    refine: float = 0.5
+    refine_margin: float = 0.2
+    refine_min: int | None = None
+    guide: float = 0.0
+    guide_eps: float = 1e-4
+    crop_size: int = 0
+    crop_margin: float = 0.1
+
+    @property
+    def refine_side(self) -> int:
+        """The smallest square side that gets a second look."""
+        return self.size if self.refine_min is None else self.refine_min
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> MaskSpec:
+        return spec_from_dict(cls, d)
+
+
+def spec_from_dict(cls, d: dict):
+    """A spec dataclass from its JSON form (lists back to tuples)."""
+    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+def mask_bounds(mask: np.ndarray) -> tuple[int, int, int, int] | None:
+    """(top, left, bottom, right), exclusive, of the True pixels of a boolean mask; None if none."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if len(rows) == 0:
+        return None
+    return int(rows[0]), int(cols[0]), int(rows[-1]) + 1, int(cols[-1]) + 1
+
+
+def mask_input(rgb: np.ndarray, spec: MaskSpec, size: int | None = None) -> np.ndarray:
+    """The foreground network's input (3, size, size) float32 of an (H, W, 3) uint8 image
+    (``size``: default ``spec.size``), stretched to the square: box-filtered down, bilinear up."""
+    size = spec.size if size is None else size
+    img = Image.fromarray(np.ascontiguousarray(rgb[..., :3]), "RGB")
+    small = min(img.width, img.height) >= size
+    img = img.resize((size, size), Image.Resampling.BOX if small else Image.Resampling.BILINEAR)
+    x = np.asarray(img, np.float32) / 255.0
+    x = (x - np.asarray(spec.mean, np.float32)) / np.asarray(spec.std, np.float32)
+    return np.ascontiguousarray(x.transpose(2, 0, 1))
+
+
+def crop_input(rgb: np.ndarray, first: np.ndarray, square: tuple[int, int, int, int], spec: MaskSpec) -> np.ndarray:
+    """The refinement network's input (4, crop_size, crop_size) float32: the ``square`` (y0, y1,
+    x0, x1, exclusive) of ``rgb`` (H, W, 3) uint8 as :func:`mask_input` makes it, and the first
+    mask ``first`` (H, W) in [0, 1] over the same square, resized alike, as 2 p - 1."""
+    y0, y1, x0, x1 = square
+    size = spec.crop_size
+    prior = resize_mask(np.asarray(first[y0:y1, x0:x1], np.float32), size, size)
+    return np.concatenate([mask_input(rgb[y0:y1, x0:x1], spec, size), (2 * np.clip(prior, 0, 1) - 1)[None]])
+
+
+def resize_mask(mask: np.ndarray, height: int, width: int) -> np.ndarray:
+    """A float mask resized to (height, width): bilinear up, box-filtered down."""
+    img = Image.fromarray(np.ascontiguousarray(mask, dtype=np.float32), "F")
+    down = height <= img.height and width <= img.width
+    return np.asarray(img.resize((width, height), Image.Resampling.BOX if down else Image.Resampling.BILINEAR),
+                      np.float32)
+
+
+def mask_output(logits: np.ndarray) -> np.ndarray:
+    """(size, size) float32 object probability of the network's (size, size) logits: on the
+    network's grid over the whole image (:func:`to_image` brings it to the image)."""
+    x = np.asarray(logits, np.float32).reshape(logits.shape[-2:])
+    return 1.0 / (1.0 + np.exp(-np.clip(x, -30, 30)))
+
+
+def clean_mask(mask: np.ndarray, spec: MaskSpec, area: int | None = None) -> np.ndarray:
+    """The mask without its specks: when components (of pixels above 0.5) smaller than ``spec.keep``
+    of the largest exist, everything further than 2 pixels from the components kept is cleared;
+    NoObjectError when what is left covers less than ``spec.min_area`` of the image (``area``
+    pixels: by default the mask's own)."""
+    area = mask.size if area is None else area
+    hard = mask > 0.5
+    support = mask_bounds(hard)
+    if support is None:
+        raise NoObjectError("no object found in the image: no region of it looks like an object against its "
+                            "background")
+    top, left, bottom, right = support
+    labels, n = ndimage.label(hard[top:bottom, left:right])     # every component lies in the box
+    sizes = np.bincount(labels.ravel(), minlength=n + 1)[1:]
+    keep = np.flatnonzero(sizes >= spec.keep * sizes.max()) + 1
+    if int(sizes[keep - 1].sum()) < spec.min_area * area:
+        raise NoObjectError(f"no object found in the image: the largest region that looks like one covers "
+                            f"{sizes.max() / area:.2%} of it (at least {spec.min_area:.1%} is needed); "
+                            "send a photo where the object fills more of the frame")
+    if len(keep) == n:
+        return mask
+    # the kept components grown by the 2-pixel reach, on the box grown by as much: nothing else survives
+    kept_label = np.zeros(n + 1, bool)
+    kept_label[keep] = True
+    near = ndimage.binary_dilation(np.pad(kept_label[labels], 2), iterations=2)   # rows from top - 2
+    y0, y1 = max(0, top - 2), min(mask.shape[0], bottom + 2)
+    x0, x1 = max(0, left - 2), min(mask.shape[1], right + 2)
+    out = np.zeros(mask.shape, np.float32)
+    out[y0:y1, x0:x1] = np.where(near[y0 - top + 2:y1 - top + 2, x0 - left + 2:x1 - left + 2],
+                                 mask[y0:y1, x0:x1], 0.0)
+    return out
+
+
+def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float) -> np.ndarray:
+    """``p`` (h, w) in [0, 1], an object probability on a grid over the whole of ``rgb`` (H, W, 3)
+    uint8 (the foreground network's, or the image's own pixels), brought to the image's resolution
+    with its grey image (luma) as the guide: He, Sun and Tang's guided filter (ECCV 2010), in the
+    fast form of He and Sun (2015) where the grid is coarser than the image.  On the grid, in every
+    (2 r + 1)² window (``r``: ``radius`` in grid pixels, rounded, at least 1), ``p`` is fitted as a
+    linear function ``a I + b`` of the guide reduced to the grid, by least squares with the
+    regulariser ``eps`` on ``a``;
+    the fits of the windows over a grid point are averaged, and ``a``, ``b`` resized to the image
+    (bilinear) give ``a I + b`` at every pixel of the image.  Where the image has an edge the mask
+    follows it (the edges and thin parts a low-resolution mask blurs); where the image is flat the
+    mask is smoothed.  The cost is the grid's, plus a few operations per image pixel.  Float32
+    (H, W), clipped to [0, 1]."""
+    p = np.asarray(p, np.float32)
+    grey = Image.fromarray(np.ascontiguousarray(rgb[..., :3]), "RGB").convert("L")      # luma, ITU-R 601
+    guide = np.asarray(grey, np.float32) / np.float32(255)
+    (h, w), (H, W) = p.shape, guide.shape
+    g = guide if (h, w) == (H, W) else resize_mask(guide, h, w)
+    size = 2 * max(1, round(radius)) + 1
+
+    def box(x: np.ndarray) -> np.ndarray:
+        return ndimage.uniform_filter(x, size, mode="reflect")
+
+    mean_i, mean_p = box(g), box(p)
+    a = (box(g * p) - mean_i * mean_p) / (box(g * g) - mean_i * mean_i + np.float32(eps))
+    a_mean, b_mean = box(a), box(mean_p - a * mean_i)
+    if (h, w) != (H, W):
+        a_mean, b_mean = resize_mask(a_mean, H, W), resize_mask(b_mean, H, W)
+    return np.clip(a_mean * guide + b_mean, 0.0, 1.0)
+
+
+def to_image(rgb: np.ndarray, p: np.ndarray, spec: MaskSpec) -> np.ndarray:
+    """An object probability ``p`` on a grid over the whole of ``rgb`` (the network's ``spec.size``
+    square, or the image's own pixels) at the image's (H, W), float32 in [0, 1]: through
+    ``spec``'s guided filter (its radius given in the network's pixels, scaled to the grid), else
+    resized (bilinear)."""
+    p = np.asarray(p, np.float32)
+    if spec.guide > 0:
+        return guided_filter(rgb, p, spec.guide * max(p.shape) / spec.size, spec.guide_eps)
+    return np.clip(p if p.shape == rgb.shape[:2] else resize_mask(p, *rgb.shape[:2]), 0.0, 1.0)
+
+
+def object_square(box: tuple[int, int, int, int], height: int, width: int, margin: float) -> tuple[int, int, int, int]:
+    """(y0, y1, x0, x1), exclusive: the square about ``box`` (top, left, bottom, right) whose side
+    is the box's longest side grown by ``margin`` on each side, clipped to a height x width image:
+    where the second look (:func:`object_mask`) segments a small object again."""
+    top, left, bottom, right = box
+    side = int(round(max(bottom - top, right - left) * (1 + 2 * margin)))
+    ty, tx = int(round((top + bottom - side) / 2)), int(round((left + right - side) / 2))
+    return max(0, ty), min(height, ty + side), max(0, tx), min(width, tx + side)
+
+
+def refine_square(box: tuple[int, int, int, int], height: int, width: int,
+                  spec: MaskSpec) -> tuple[int, int, int, int] | None:
+    """The square a second look would segment, (y0, y1, x0, x1) (:func:`object_square` with
+    ``spec.refine_margin``), or None when it covers ``spec.refine`` of the image or more (a large
+    object: the first look saw it well enough)."""
+    y0, y1, x0, x1 = object_square(box, height, width, spec.refine_margin)
+    return None if (y1 - y0) * (x1 - x0) >= spec.refine * height * width else (y0, y1, x0, x1)
+
+
+def object_mask(rgb: np.ndarray, segment, spec: MaskSpec, refine=None) -> np.ndarray:
+    """(H, W) float32 object mask of an opaque image from ``segment`` (the foreground network: an
+    (h, w, 3) uint8 image to its object probability on a grid over the whole image, the network's
+    ``spec.size`` square or the image's own pixels), brought to the image (:func:`to_image`: the
+    guided filter of ``spec``), specks removed (:func:`clean_mask`; NoObjectError when nothing is
+    left); a small object in a large photo is segmented again in its square (see
+    :class:`MaskSpec`), the second mask replacing the first there and clearing it elsewhere
+    (unless it finds nothing: then the first stands).  ``refine`` (the refinement network: a
+    (4, crop_size, crop_size) :func:`crop_input` to its object probability on that grid), when
+    given and ``spec.crop_size`` is set, then segments the object's square once more
+    (:func:`refined_mask`)."""
+    h, w = rgb.shape[:2]
+
+    def look(image: np.ndarray) -> np.ndarray:
+        return to_image(image, segment(image), spec)
+
+    mask = clean_mask(look(rgb), spec)
+    square = refine_square(mask_bounds(mask > 0.5), h, w, spec)
+    if square is not None and min(square[1] - square[0], square[3] - square[2]) >= spec.refine_side:
+        y0, y1, x0, x1 = square
+        try:
+            part = clean_mask(look(np.ascontiguousarray(rgb[y0:y1, x0:x1])), spec, h * w)
+            mask = np.zeros_like(mask)
+            mask[y0:y1, x0:x1] = part
+        except NoObjectError:            # the closer look lost the object: keep the first look's mask
+            pass
+    if refine is None or not spec.crop_size:
+        return mask
+    return refined_mask(rgb, mask, refine, spec)
+
+
+def refined_mask(rgb: np.ndarray, first: np.ndarray, refine, spec: MaskSpec) -> np.ndarray:
+    """The first mask ``first`` (H, W) of ``rgb`` refined: the object's square (:func:`object_square`
+    with ``spec.crop_margin``) segmented by ``refine`` from :func:`crop_input`, its probability
+    resized to the square (bilinear) and cleaned (:func:`clean_mask`), replacing the first mask
+    there and clearing it elsewhere; the first mask when the refinement finds nothing."""
+    h, w = rgb.shape[:2]
+    y0, y1, x0, x1 = square = object_square(mask_bounds(first > 0.5), h, w, spec.crop_margin)
+    p = np.asarray(refine(crop_input(rgb, first, square, spec)), np.float32)
+    try:
+        part = clean_mask(np.clip(resize_mask(p, y1 - y0, x1 - x0), 0, 1), spec, h * w)
+    except NoObjectError:
+        return first
+    out = np.zeros_like(first)
+    out[y0:y1, x0:x1] = part
+    return out
+
+
+def mask_iou(ours: np.ndarray, truth: np.ndarray) -> float:
+    """Intersection over union of two boolean masks (0 when both are empty)."""
+    return float((ours & truth).sum() / max(1, (ours | truth).sum()))
