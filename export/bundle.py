@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 
 from model.decode import empty_bias_of
@@ -27,7 +28,21 @@ BUNDLE_FORMAT = 2
 decoders (``octree.guided``), which a format-1 reader could not run, so bundles without them are
 still written as format 1."""
 MANIFEST = "model.json"
-TASKS = ("image-to-shape", "completion", "autoencoder", "classify")
+class Task(StrEnum):
+    """What a bundle serves (``model.json``'s ``task``)."""
+
+    IMAGE_TO_SHAPE = "image-to-shape"
+    COMPLETION = "completion"
+    AUTOENCODER = "autoencoder"
+    CLASSIFY = "classify"
+
+
+TASKS = tuple(Task)
+BUNDLE_TASKS = {"image": Task.IMAGE_TO_SHAPE, "autoencoder": Task.AUTOENCODER, "completion": Task.COMPLETION,
+                "classify": Task.CLASSIFY}
+"""Training task (``python -m model.train TASK``) -> the bundle task its export serves."""
+SERVED_IN = {**BUNDLE_TASKS, "foreground": Task.IMAGE_TO_SHAPE, "refine": Task.IMAGE_TO_SHAPE}
+"""Training task -> the bundle that serves its network (the foreground networks ride in image bundles)."""
 DTYPES = ("float32", "int64")
 
 
@@ -111,10 +126,10 @@ def required_graphs(task: str, octree: OctreeSpec) -> list[str]:
     """The graphs a bundle of ``task`` must hold."""
     decoder = ["decoder_start"] + [f"decoder_predict_{d}" for d in range(octree.full_depth, octree.depth + 1)] \
         + [f"decoder_expand_{d}" for d in range(octree.full_depth, octree.depth)]
-    return {"image-to-shape": ["image_encoder", *decoder],
-            "completion": ["octree_encoder", *decoder],
-            "autoencoder": ["octree_encoder", *decoder],
-            "classify": ["octree_encoder", "classifier_head"]}[task]
+    return {Task.IMAGE_TO_SHAPE: ["image_encoder", *decoder],
+            Task.COMPLETION: ["octree_encoder", *decoder],
+            Task.AUTOENCODER: ["octree_encoder", *decoder],
+            Task.CLASSIFY: ["octree_encoder", "classifier_head"]}[task]
 
 
 def _get(obj: dict, key: str, kind, where: str):

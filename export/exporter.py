@@ -31,14 +31,11 @@ from model.checkpoint import Loaded, load_model
 from model.train.tasks import TASKS
 
 from . import graphs as G
-from .bundle import BUNDLE_FORMAT, MANIFEST, BundleError, GraphSpec, load_bundle
+from .bundle import BUNDLE_FORMAT, BUNDLE_TASKS, MANIFEST, BundleError, GraphSpec, Task, load_bundle
 from .quantize import output_range, quantize_static_graph
 from .parity import RELATIVE_TOLERANCE, ParityReport, decoder_parity, probe_octrees, relative_error
 from .runtime import Runtime
 
-BUNDLE_TASKS = {"image": "image-to-shape", "autoencoder": "autoencoder", "completion": "completion",
-                "classify": "classify"}
-"""Training task -> bundle task."""
 POINT_LIMITS = {"min_points": 100, "max_points": 1_000_000}
 
 
@@ -96,21 +93,21 @@ def load_foreground(path: str | Path) -> Loaded:
 
 
 def _io_spec(src: Loaded, task: str, foreground: Loaded | None = None) -> tuple[dict, dict]:
-    if task == "image-to-shape":
+    if task == Task.IMAGE_TO_SHAPE:
         spec = src.config.image_spec()
         inp = {"kind": "image", "image": dataclasses.asdict(spec)}
         if foreground is not None:
             inp["foreground"] = TASKS["foreground"].spec(foreground.config, foreground.meta).to_dict()
     else:
         inp = {"kind": "points", "points": {**POINT_LIMITS, "normals": "estimated when absent"}}
-        if task == "completion":
+        if task == Task.COMPLETION:
             inp["points"]["frame"] = {"function": "model.octree.scan_frame", "margin": SCAN_FRAME_MARGIN}
-        if task == "classify":
+        if task == Task.CLASSIFY:
             inp["points"]["up"] = src.config.up
-    if task == "classify":
+    if task == Task.CLASSIFY:
         return inp, {"kind": "probabilities", "classes": list(src.config.categories)}
     out = {"kind": "patches", "coordinates": "unit cube [0, 1]^3 (the service maps them to the input's frame)"}
-    if task == "completion" and src.meta.get("keep_scan"):
+    if task == Task.COMPLETION and src.meta.get("keep_scan"):
         out["keep_scan"] = src.meta["keep_scan"]          # the decode setting chosen for keep_scan outputs
     return inp, out
 
@@ -264,7 +261,7 @@ def export(source: str | Path, out: str | Path, name: str | None = None, force: 
     task = BUNDLE_TASKS[src.config.task]
     fg = None
     if foreground is not None:
-        if task != "image-to-shape":
+        if task != Task.IMAGE_TO_SHAPE:
             raise BundleError(f"--foreground goes with an image model, not a {task} model")
         fg = load_foreground(foreground)
     out.parent.mkdir(parents=True, exist_ok=True)

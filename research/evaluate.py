@@ -242,13 +242,13 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     cfg = dataclasses.replace(cfg, data=data)          # the dataset to evaluate on (not the training one)
     runtime = None
     if bundle is not None:
-        from export.bundle import BundleError, load_bundle
+        from export.bundle import SERVED_IN, BundleError, load_bundle
         from export.runtime import Runtime
         try:
             runtime = Runtime(load_bundle(bundle))
         except BundleError as exc:
             raise ValueError(f"--bundle: {exc}") from None
-        want = {"image": "image-to-shape", "foreground": "image-to-shape"}.get(cfg.task, cfg.task)
+        want = SERVED_IN.get(cfg.task, cfg.task)
         if cfg.task == "foreground" and not runtime.has_foreground:
             raise ValueError(f"--bundle {bundle} has no foreground network")
         if runtime.bundle.task != want:

@@ -11,13 +11,13 @@ from __future__ import annotations
 import asyncio
 from typing import Callable
 
-from .errors import APIError
+from .errors import ServiceError
 from .limiter import Limiter
 
 
 class Batcher:
     """Collects requests for ``run`` (a blocking function from a list of requests to a list of
-    results or APIErrors) and runs them through the limiter in batches."""
+    results or ServiceErrors) and runs them through the limiter in batches."""
 
     def __init__(self, run: Callable[[list], list], limiter: Limiter, window_s: float, max_batch: int,
                  timeout: float):
@@ -38,7 +38,7 @@ class Batcher:
         try:
             return await asyncio.wait_for(asyncio.shield(future), self.timeout)
         except (asyncio.TimeoutError, TimeoutError):
-            raise APIError(504, "timeout", f"the request did not finish within {self.timeout:g} s",
+            raise ServiceError("timeout", f"the request did not finish within {self.timeout:g} s",
                            "send a smaller input or raise AOCNN_TIMEOUT_S") from None
 
     def _flush(self) -> None:

@@ -7,7 +7,7 @@ import hmac
 from fastapi import Request
 
 from .engine import Engine
-from .errors import APIError
+from .errors import ServiceError
 
 
 def engine(request: Request) -> Engine:
@@ -21,5 +21,5 @@ def require_key(request: Request) -> None:
         return
     scheme, _, token = request.headers.get("authorization", "").partition(" ")
     if scheme.lower() != "bearer" or not any(hmac.compare_digest(token.strip(), k) for k in keys):
-        raise APIError(401, "unauthorized", "a valid API key is required",
+        raise ServiceError("unauthorized", "a valid API key is required",
                        "send the header 'Authorization: Bearer <key>'", {"WWW-Authenticate": "Bearer"})

@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from PIL import Image
 
-from export.bundle import Bundle, BundleError, load_bundle
+from export.bundle import Bundle, BundleError, Task, load_bundle
 from export.runtime import Runtime
 from model.decode import DECODED_NORMALIZATION
 from model.image.frame import Framed, upload_mask
@@ -26,8 +26,9 @@ from model.octree.fuse import keep_scan
 from model.octree.symmetry import Mirror, symmetrize
 
 from .batching import Batcher
-from .errors import APIError
+from .errors import ServiceError
 from .inputs import image_input, shape_input
+from .jobs import ImageJob, ImageResult, MeshOptions, ScanJob, ScanResult
 from .limiter import Limiter, plan_threads
 from .meshes import MeshFile, encode, encode_mesh
 from .metrics import Metrics, StageTimer
@@ -38,31 +39,6 @@ log = logging.getLogger("service")
 
 class StartupError(RuntimeError):
     """The service cannot start: the message names the bundle and the problem."""
-
-
-@dataclass
-class Request:
-    """One request's input and output choices, as the batch functions take them; ``framed``: a
-    photo's framing (mask source, crop box, mask), set by :meth:`Engine.frame_image`; ``mirror``:
-    a scan's mirror plane and its support, set by :meth:`Engine.complete_batch` when ``symmetry``;
-    ``strays``: the scan's points far from the rest that were dropped, set by it too."""
-
-    data: bytes
-    fmt: str
-    depth: int | None
-    color: bool
-    timer: StageTimer
-    filename: str | None = None
-    surface: str = DEFAULT_SURFACE
-    faces: int | None = None
-    remove_background: str = "auto"
-    foreground_ratio: float | None = None
-    framed: Framed | None = None
-    keep_scan: bool = False            # completion: the output keeps the scan's patches where it has points
-    symmetry: bool = False             # completion: a scan supported by its mirror plane is read with its mirror image
-    mirror: Mirror | None = None
-    up: str = "y"                      # completion: the upload's up axis (turned to y for the network, the output back)
-    strays: int = 0
 
 
 @dataclass
@@ -105,19 +81,19 @@ class Engine:
         self.limiter = Limiter(self.concurrency, self.settings.queue, self.metrics)
         st = self.settings
         self.batchers = {task: Batcher(fn, self.limiter, st.batch_window_ms / 1e3, st.max_batch, st.timeout_s)
-                         for task, fn in (("image-to-shape", self.image_batch), ("completion", self.complete_batch))}
+                         for task, fn in ((Task.IMAGE_TO_SHAPE, self.image_batch), (Task.COMPLETION, self.complete_batch))}
 
     def warm_up(self) -> None:
         """One inference per model (first calls allocate and optimise); then the service is ready."""
         for served in self.models.values():
             rt, b = served.runtime, served.bundle
             guide = None
-            if b.task == "image-to-shape":
+            if b.task == Task.IMAGE_TO_SHAPE:
                 size = b.image_spec().size
                 latent = rt.encode_image(np.zeros((1, 3, size, size), np.float32))
-            elif b.task in ("completion", "autoencoder", "classify"):
+            elif b.task in (Task.COMPLETION, Task.AUTOENCODER, Task.CLASSIFY):
                 latent, guide = rt.encode_scan(build_octree(_sphere(), b.octree.depth, adaptive=b.octree.adaptive))
-                if b.task == "classify":
+                if b.task == Task.CLASSIFY:
                     rt.classify(latent)
                     continue
             else:
@@ -131,7 +107,7 @@ class Engine:
 
     def model(self, task: str) -> Served:
         if task not in self.models:
-            raise APIError(503, "no_model", f"no {task} model is installed in this service",
+            raise ServiceError("no_model", f"no {task} model is installed in this service",
                            f"add a {task} bundle to AOCNN_MODELS_DIR and restart; GET /v1/models lists what is served",
                            {"Retry-After": "3600"})
         return self.models[task]
@@ -141,126 +117,128 @@ class Engine:
         if depth is None:
             return o.depth
         if not o.adaptive_depth <= depth <= o.depth:
-            raise APIError(422, "invalid_depth", f"depth must be in {o.adaptive_depth}..{o.depth} for this model, "
+            raise ServiceError("invalid_depth", f"depth must be in {o.adaptive_depth}..{o.depth} for this model, "
                            f"got {depth}", "omit depth for the model's full detail")
         return depth
 
     # -- the blocking work of each endpoint (runs in the limiter's threads) -----------------
-    def frame_image(self, item: Request) -> Framed:
+    def frame_image(self, job: ImageJob) -> Framed:
         """A photo decoded, its object found (alpha, or the foreground network timed as the ``mask``
-        stage) and framed for the encoder; kept on ``item.framed``."""
-        served = self.model("image-to-shape")
+        stage) and framed for the encoder."""
+        served = self.model(Task.IMAGE_TO_SHAPE)
         b = served.bundle
 
         def segment(rgb: np.ndarray) -> np.ndarray:
-            with item.timer("mask"):
+            with job.timer("mask"):
                 return served.runtime.segment(rgb)
 
-        with item.timer("decode_input"):
-            item.framed = image_input(item.data, b.image_spec(), self.settings.max_image_pixels,
-                                      segment if served.runtime.has_foreground else None, item.remove_background,
-                                      item.foreground_ratio, b.mask_spec() or MaskSpec())
-        return item.framed
+        with job.timer("decode_input"):
+            return image_input(job.data, b.image_spec(), self.settings.max_image_pixels,
+                               segment if served.runtime.has_foreground else None, job.remove_background,
+                               job.foreground_ratio, b.mask_spec() or MaskSpec())
 
-    def mask_png(self, item: Request) -> bytes:
-        """The mask a photo's framing used, as an 8-bit greyscale PNG of the photo's size (debug=mask);
-        422 ``no_mask`` for an opaque photo framed without one."""
-        framed = self.frame_image(item)
+    def mask_png(self, job: ImageJob) -> tuple[bytes, Framed]:
+        """The mask a photo's framing used, as an 8-bit greyscale PNG of the photo's size (debug=mask),
+        and the framing; ``no_mask`` for an opaque photo framed without one."""
+        framed = self.frame_image(job)
         if framed.mask is None:
-            if item.remove_background == "false":
-                raise APIError(422, "no_mask", "there is no mask: the image is opaque and remove_background=false "
-                               "keeps its background", "drop remove_background=false to see the foreground "
-                               "network's mask, or send a PNG with transparency around the object")
-            raise APIError(422, "no_mask", "there is no mask: the image is opaque and this model has no foreground "
-                           "network to find the object", "send a PNG with transparency around the object")
+            if job.remove_background == "false":
+                raise ServiceError("no_mask", "there is no mask: the image is opaque and remove_background=false "
+                                   "keeps its background", "drop remove_background=false to see the foreground "
+                                   "network's mask, or send a PNG with transparency around the object")
+            raise ServiceError("no_mask", "there is no mask: the image is opaque and this model has no foreground "
+                               "network to find the object", "send a PNG with transparency around the object")
         buf = io.BytesIO()
         Image.fromarray(upload_mask(framed)).save(buf, format="PNG")
-        return buf.getvalue()
+        return buf.getvalue(), framed
 
-    def image_batch(self, items: list[Request]) -> list[MeshFile | APIError]:
-        """Photos -> meshes, encoded and decoded as one batch; a bad input fails only its own item."""
-        served = self.model("image-to-shape")
+    def image_batch(self, jobs: list[ImageJob]) -> list[ImageResult | ServiceError]:
+        """Photos -> meshes, encoded and decoded as one batch; a bad input fails only its own job."""
+        served = self.model(Task.IMAGE_TO_SHAPE)
 
-        def prepare(item: Request):
-            return self.frame_image(item).image
+        def prepare(job: ImageJob) -> tuple[np.ndarray, Framed]:
+            framed = self.frame_image(job)
+            return framed.image, framed
 
         def encode(inputs):
             return served.runtime.encode_image(np.stack(inputs)), None
 
-        def place(tree: Octree, _, __) -> Octree:
+        def finish(tree: Octree, framed: Framed, job: ImageJob) -> ImageResult:
             tree.normalizations = [DECODED_NORMALIZATION]
-            return tree
+            return ImageResult(_mesh(tree, job.mesh, job.timer), framed)
 
-        return self._batch(served, items, prepare, encode, place)
+        return self._batch(served, jobs, prepare, encode, finish)
 
-    def complete_batch(self, items: list[Request]) -> list[MeshFile | APIError]:
+    def complete_batch(self, jobs: list[ScanJob]) -> list[ScanResult | ServiceError]:
         """Partial scans -> completed meshes in each scan's frame, as one batch."""
-        served = self.model("completion")
+        served = self.model(Task.COMPLETION)
         o = served.bundle.octree
 
-        def prepare(item: Request):
-            with item.timer("decode_input"):
-                loaded = shape_input(item.data, item.filename, o.depth, self.settings.max_points,
+        def prepare(job: ScanJob) -> tuple[Octree, tuple[Octree, Mirror | None, int]]:
+            with job.timer("decode_input"):
+                loaded = shape_input(job.data, job.filename, o.depth, self.settings.max_points,
                                      self.settings.max_npz_bytes)
-            item.strays = loaded.cloud.strays
+            strays = loaded.cloud.strays
             if len(loaded.cloud) < MIN_SCAN_POINTS:
-                strays = f" once {item.strays} far from the rest are dropped" if item.strays else ""
-                raise APIError(400, "too_few_points", f"the scan has {len(loaded.cloud)} points{strays}; completion "
-                               f"needs at least {MIN_SCAN_POINTS}", "send the scanner's whole point cloud")
-            with item.timer("octree_build"):       # the scan's frame, as the model was trained
-                cloud = _upright(loaded.cloud, item.up)      # as the network was trained
-                if item.symmetry:
-                    cloud, item.mirror = symmetrize(cloud)
-                return scan_octree(cloud, o.depth, adaptive=o.adaptive, full_depth=o.full_depth,
-                                   adaptive_depth=o.adaptive_depth,
-                                   **({"threshold": o.threshold} if o.threshold else {}))
+                dropped = f" once {strays} far from the rest are dropped" if strays else ""
+                raise ServiceError("too_few_points", f"the scan has {len(loaded.cloud)} points{dropped}; completion "
+                                   f"needs at least {MIN_SCAN_POINTS}", "send the scanner's whole point cloud")
+            mirror = None
+            with job.timer("octree_build"):       # the scan's frame, as the model was trained
+                cloud = _upright(loaded.cloud, job.up)      # as the network was trained
+                if job.symmetry:
+                    cloud, mirror = symmetrize(cloud)
+                scan = scan_octree(cloud, o.depth, adaptive=o.adaptive, full_depth=o.full_depth,
+                                   adaptive_depth=o.adaptive_depth, **({"threshold": o.threshold} if o.threshold else {}))
+            return scan, (scan, mirror, strays)
 
         def encode(trees):
             return served.runtime.encode_scan(merge_octrees(trees))
 
-        def place(tree: Octree, scan: Octree, item: Request) -> Octree:
+        def finish(tree: Octree, found: tuple[Octree, Mirror | None, int], job: ScanJob) -> ScanResult:
+            scan, mirror, strays = found
             tree.normalizations = list(scan.normalizations)   # decoded in the scan's frame
-            if not item.keep_scan:
-                return tree
-            with item.timer("keep_scan"):
-                return keep_scan(tree, scan)
+            if job.keep_scan:
+                with job.timer("keep_scan"):
+                    tree = keep_scan(tree, scan)
+            back = None if job.up == "y" else to_y_up(job.up).T     # to the upload's up axis
+            return ScanResult(_mesh(tree, job.mesh, job.timer, back), mirror, strays)
 
-        return self._batch(served, items, prepare, encode, place)
+        return self._batch(served, jobs, prepare, encode, finish)
 
-    def _batch(self, served: Served, items: list[Request], prepare, encode, place) -> list[MeshFile | APIError]:
-        """Prepare each item (its own errors kept for it), encode all (``encode`` -> latent codes
-        and a guided decoder's :class:`~model.decode.Guide` or None), decode per depth (and
-        keep_scan: its outputs decode with the bundle's keep_scan bias), and ``place(tree,
-        prepared, item)`` each decoded tree in the item's frame before meshing."""
-        out: list = [None] * len(items)
-        ready = []
-        for i, item in enumerate(items):
+    def _batch(self, served: Served, jobs: list, prepare, encode, finish) -> list:
+        """Prepare each job (``prepare(job)`` -> the encoder's input and what ``finish`` needs; a
+        job's own errors kept for it), encode all (``encode`` -> latent codes and a guided decoder's
+        :class:`~model.decode.Guide` or None), decode per depth (and keep_scan: its outputs decode
+        with the bundle's keep_scan bias), and ``finish(tree, found, job)`` each decoded tree into
+        the job's result."""
+        out: list = [None] * len(jobs)
+        ready, depths = [], {}
+        for i, job in enumerate(jobs):
             try:
-                item.depth = self.check_depth(served, item.depth)
-                ready.append((i, prepare(item)))
-            except APIError as exc:
+                depths[i] = self.check_depth(served, job.mesh.depth)
+                ready.append((i, *prepare(job)))
+            except ServiceError as exc:
                 out[i] = exc
         if not ready:
             return out
         t = time.perf_counter()
-        latent, guide = encode([x for _, x in ready])        # guide: a guided decoder's input
-        _share([items[i] for i, _ in ready], "encoder", time.perf_counter() - t)
+        latent, guide = encode([x for _, x, _ in ready])        # guide: a guided decoder's input
+        _share([jobs[i] for i, _, _ in ready], "encoder", time.perf_counter() - t)
         bias = served.bundle.keep_scan_bias        # the decode setting of outputs that keep the scan
-        for depth, keep in sorted({(items[i].depth, items[i].keep_scan) for i, _ in ready}):
-            group = [k for k, (i, _) in enumerate(ready) if (items[i].depth, items[i].keep_scan) == (depth, keep)]
+        keeps = {i: getattr(jobs[i], "keep_scan", False) for i, _, _ in ready}
+        for depth, keep in sorted({(depths[i], keeps[i]) for i, _, _ in ready}):
+            group = [k for k, (i, _, _) in enumerate(ready) if (depths[i], keeps[i]) == (depth, keep)]
             t = time.perf_counter()
             decoded = split_octree(served.runtime.decode(latent[group], depth, bias if keep else None,
                                                          guide and guide.subset(np.array(group))),
                                    neighbors=False)
-            _share([items[ready[k][0]] for k in group], "decoder", time.perf_counter() - t)
+            _share([jobs[ready[k][0]] for k in group], "decoder", time.perf_counter() - t)
             for k, tree in zip(group, decoded):
-                i, x = ready[k]
-                tree = place(tree, x, items[i])
+                i, _, found = ready[k]
                 try:
-                    back = None if items[i].up == "y" else to_y_up(items[i].up).T     # to the upload's up axis
-                    out[i] = _mesh(tree, items[i].fmt, items[i].color, items[i].timer, items[i].surface, items[i].faces,
-                                   back)
-                except APIError as exc:
+                    out[i] = finish(tree, found, jobs[i])
+                except ServiceError as exc:
                     out[i] = exc
         return out
 
@@ -269,7 +247,7 @@ class Engine:
         """Class probabilities (R, C) of a shape at R rotations about the bundle's up axis: 12 with
         ``vote`` (the paper's test-time vote, 12x the work), else 1; the shape first turned from its
         up axis ``up`` to the model's; and how many of its points far from the rest were dropped."""
-        served = self.model("classify")
+        served = self.model(Task.CLASSIFY)
         b = served.bundle
         o = b.octree
         with timer("decode_input"):
@@ -287,31 +265,31 @@ class Engine:
         with timer("encoder"):
             return served.runtime.classify(served.runtime.encode_octree(merge_octrees(trees))), loaded.cloud.strays
 
-    def octree(self, data: bytes, filename: str | None, depth: int, threshold: float | None, full: bool, fmt: str,
-               color: bool, timer: StageTimer, surface: str = DEFAULT_SURFACE,
-               faces: int | None = None) -> tuple[MeshFile, int]:
-        """The mesh of a shape's octree, and how many of its points far from the rest were dropped."""
+    def octree(self, data: bytes, filename: str | None, threshold: float | None, full: bool, options: MeshOptions,
+               timer: StageTimer) -> tuple[MeshFile, int]:
+        """The mesh of a shape's octree at ``options.depth``, and how many of its points far from the
+        rest were dropped."""
         with timer("decode_input"):
-            loaded = shape_input(data, filename, depth, self.settings.max_points, self.settings.max_npz_bytes, "shape")
+            loaded = shape_input(data, filename, options.depth, self.settings.max_points, self.settings.max_npz_bytes,
+                                 "shape")
         with timer("octree_build"):
-            tree = build_octree(loaded.cloud, depth, adaptive=not full, neighbors=False,
+            tree = build_octree(loaded.cloud, options.depth, adaptive=not full, neighbors=False,
                                 sample_spacing=loaded.sample_spacing, **({"threshold": threshold} if threshold else {}))
-        return _mesh(tree, fmt, color, timer, surface, faces), loaded.cloud.strays
+        return _mesh(tree, options, timer), loaded.cloud.strays
 
 
-def _mesh(octree, fmt: str, color: bool, timer: StageTimer, surface: str, faces: int | None = None,
-          rotation: np.ndarray | None = None) -> MeshFile:
-    """The mesh file of a decoded octree, its vertices turned by ``rotation`` (back to the upload's
-    up axis) when given."""
+def _mesh(octree, options: MeshOptions, timer: StageTimer, rotation: np.ndarray | None = None) -> MeshFile:
+    """The mesh file of an octree as ``options`` ask, its vertices turned by ``rotation`` (back to
+    the upload's up axis) when given; ``empty_output`` for a decoded octree without leaves."""
     if not any(octree.leaves_per_depth()):
-        raise APIError(422, "empty_output", "the model decoded no surface from this input",
-                       "send a photo or scan of one object, centred, on a plain background")
+        raise ServiceError("empty_output", "the model decoded no surface from this input",
+                           "send a photo or scan of one object, centred, on a plain background")
     with timer("surface"):
-        m = surface_mesh(octree, surface, faces=faces)
+        m = surface_mesh(octree, options.surface, faces=options.faces)
         if rotation is not None:
             m = replace(m, vertices=m.vertices @ rotation.T)
     with timer("mesh_encode"):
-        return encode(m, octree, fmt, color)
+        return encode(m, octree, options.fmt, options.color)
 
 
 def _upright(cloud: PointCloud, up: str, model_up: str = "y") -> PointCloud:
@@ -319,10 +297,10 @@ def _upright(cloud: PointCloud, up: str, model_up: str = "y") -> PointCloud:
     return cloud if up == model_up else cloud.rotated(to_y_up(model_up).T @ to_y_up(up))
 
 
-def _share(items: list[Request], stage: str, seconds: float) -> None:
-    """A batch stage's time, charged to each request of the batch (its latency includes all of it)."""
-    for item in items:
-        item.timer.add(stage, seconds)
+def _share(jobs: list, stage: str, seconds: float) -> None:
+    """A batch stage's time, charged to each job of the batch (its latency includes all of it)."""
+    for job in jobs:
+        job.timer.add(stage, seconds)
 
 
 def _sphere(n: int = 4000) -> tuple[np.ndarray, np.ndarray]:

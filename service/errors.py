@@ -29,12 +29,31 @@ class ErrorBody(BaseModel):
     error: ErrorDetail
 
 
-class APIError(Exception):
-    """An error response: HTTP status, a stable code, a message and what to do about it."""
+STATUS = {
+    "empty_input": 400, "invalid_image": 400, "invalid_points": 400, "too_few_points": 400,
+    "unauthorized": 401, "not_found": 404,
+    "image_too_large": 413, "input_too_large": 413, "too_many_points": 413,
+    "unsupported_format": 415, "unsupported_image": 415,
+    "empty_output": 422, "invalid_depth": 422, "invalid_request": 422, "no_foreground_network": 422,
+    "no_mask": 422, "no_object": 422, "invalid_box": 422,
+    "busy": 503, "no_model": 503, "timeout": 504}
+"""Every error code the service answers with -> its HTTP status: the one place they are mapped."""
 
-    def __init__(self, status: int, code: str, message: str, hint: str = "", headers: dict | None = None):
+
+class ServiceError(Exception):
+    """A request the service cannot serve, in its own terms: a stable ``code`` (a key of
+    :data:`STATUS`, which gives the HTTP status), a message and what to do about it.  The engine,
+    the input readers and the routers raise it; :func:`install`'s handler answers it."""
+
+    def __init__(self, code: str, message: str, hint: str = "", headers: dict | None = None):
+        if code not in STATUS:
+            raise ValueError(f"unknown error code {code!r}: add it to service.errors.STATUS")
         super().__init__(message)
-        self.status, self.code, self.message, self.hint, self.headers = status, code, message, hint, headers
+        self.code, self.message, self.hint, self.headers = code, message, hint, headers
+
+    @property
+    def status(self) -> int:
+        return STATUS[self.code]
 
 
 def error_response(status: int, code: str, message: str, hint: str = "", headers: dict | None = None) -> JSONResponse:
@@ -52,8 +71,8 @@ ERROR_RESPONSES = {s: {"model": ErrorBody, "description": d} for s, d in {
 def install(app: FastAPI) -> None:
     """Register the handlers that turn every exception into an :class:`ErrorBody` response."""
 
-    @app.exception_handler(APIError)
-    async def _api(_: Request, exc: APIError):
+    @app.exception_handler(ServiceError)
+    async def _api(_: Request, exc: ServiceError):
         return error_response(exc.status, exc.code, exc.message, exc.hint, exc.headers)
 
     @app.exception_handler(RequestValidationError)

@@ -21,7 +21,7 @@ from model.image.decode import decode_photo, ImageError
 from model.image.frame import frame_object, Framed, ImageSpec
 from model.image.mask import MaskSpec, NoObjectError
 
-from .errors import APIError
+from .errors import ServiceError
 
 POINTS_TAKEN = f"this endpoint takes a point cloud ({POINT_FORMATS})"
 SHAPES_TAKEN = f"this endpoint takes a mesh ({MESH_FORMATS}) or a point cloud ({POINT_FORMATS})"
@@ -36,27 +36,27 @@ def image_input(data: bytes, spec: ImageSpec, max_pixels: int, segment=None, rem
     one; the upload's size kept on the result), or a 4xx (415 naming what else it is, 422 when it
     shows no object or asks for a background removal the model cannot do)."""
     if not data:
-        raise APIError(400, "empty_input", "the 'image' field is empty", "upload the image file's bytes")
+        raise ServiceError("empty_input", "the 'image' field is empty", "upload the image file's bytes")
     try:
         decoded = decode_photo(data, max_pixels)
         framed = frame_object(decoded.rgba, spec, segment, remove_background, foreground_ratio, mask_spec)
         return dataclasses.replace(framed, size=decoded.size)
     except NoObjectError as exc:
-        raise APIError(422, "no_object", str(exc), "send a photo where one object stands out from its "
+        raise ServiceError("no_object", str(exc), "send a photo where one object stands out from its "
                        "background, or a PNG with transparency around the object") from None
     except ImageError as exc:
         message = str(exc)
         if message.startswith("remove_background=true needs a foreground network"):
-            raise APIError(422, "no_foreground_network", message, "send an image with transparency around the "
+            raise ServiceError("no_foreground_network", message, "send an image with transparency around the "
                            "object, or use remove_background=auto") from None
         if "more than the limit" in message:
-            raise APIError(413, "image_too_large", message, "send a smaller image (downscale it)") from None
+            raise ServiceError("image_too_large", message, "send a smaller image (downscale it)") from None
         if "not an image" in message:
             kind = identify(data)
             what = (f"this is {kind.name} that Pillow cannot decode; {IMAGES_TAKEN}" if kind.family == "image"
                     else not_taken(kind, IMAGES_TAKEN))
-            raise APIError(415, "unsupported_image", what, "send a photo of one object as PNG or JPEG") from None
-        raise APIError(400, "invalid_image", message, "send a complete, readable photo of one object") from None
+            raise ServiceError("unsupported_image", what, "send a photo of one object as PNG or JPEG") from None
+        raise ServiceError("invalid_image", message, "send a complete, readable photo of one object") from None
 
 
 def _check_size(data: bytes, fmt: str, max_points: int, max_npz_bytes: int) -> None:
@@ -65,19 +65,19 @@ def _check_size(data: bytes, fmt: str, max_points: int, max_npz_bytes: int) -> N
         try:
             total = sum(i.file_size for i in zipfile.ZipFile(io.BytesIO(data)).infolist())
         except zipfile.BadZipFile:
-            raise APIError(400, "invalid_points", "the NPZ archive is corrupt", "send a file written by numpy.savez") from None
+            raise ServiceError("invalid_points", "the NPZ archive is corrupt", "send a file written by numpy.savez") from None
         if total > max_npz_bytes:
-            raise APIError(413, "input_too_large", f"the NPZ archive unpacks to {total:,} bytes, more than the "
+            raise ServiceError("input_too_large", f"the NPZ archive unpacks to {total:,} bytes, more than the "
                            f"limit of {max_npz_bytes:,}", "send fewer points")
     elif fmt == "ply":
         declared = ply_vertex_count(data[:HEADER_BYTES])
         if declared is not None and declared > max_points:
-            raise APIError(413, "too_many_points", f"the PLY header declares {declared:,} vertices, more "
+            raise ServiceError("too_many_points", f"the PLY header declares {declared:,} vertices, more "
                            f"than the limit of {max_points:,}", "subsample the cloud")
     elif fmt == "npy":
         m = re.search(rb"'shape':\s*\((\d+)", data[:512])
         if m and int(m.group(1)) > max_points:
-            raise APIError(413, "too_many_points", f"the array has {int(m.group(1)):,} rows, more than the limit "
+            raise ServiceError("too_many_points", f"the array has {int(m.group(1)):,} rows, more than the limit "
                            f"of {max_points:,}", "subsample the cloud")
 
 
@@ -87,11 +87,11 @@ def shape_input(data: bytes, filename: str | None, depth: int, max_points: int, 
     ``shape``), normals estimated when absent, or a 4xx: 415 for a kind of file the endpoint does
     not take, 413 over a limit, 400 for a taken kind that is malformed or unusable."""
     if not data:
-        raise APIError(400, "empty_input", f"the '{field}' field is empty", "upload the file's bytes")
+        raise ServiceError("empty_input", f"the '{field}' field is empty", "upload the file's bytes")
     kind = identify(data, filename)
     takes = POINTS_TAKEN if field == "points" else SHAPES_TAKEN
     if kind.loader is None:
-        raise APIError(415, "unsupported_format", not_taken(kind, takes), "convert it to one of those formats")
+        raise ServiceError("unsupported_format", not_taken(kind, takes), "convert it to one of those formats")
     fmt = kind.loader
     _check_size(data, fmt, max_points, max_npz_bytes)
     with tempfile.TemporaryDirectory(prefix="aocnn-") as tmp:
@@ -101,9 +101,9 @@ def shape_input(data: bytes, filename: str | None, depth: int, max_points: int, 
             loaded = load_input(str(path), depth)
         except OctreeInputError as exc:
             message = str(exc).replace(str(path), f"the {fmt.upper()} upload").replace(tmp, "the upload folder")
-            raise APIError(400, "invalid_points", message, f"{takes[5:]}, with real coordinates") from None
+            raise ServiceError("invalid_points", message, f"{takes[5:]}, with real coordinates") from None
     n = len(loaded.cloud.points)
     if loaded.kind == "points" and n > max_points:
-        raise APIError(413, "too_many_points", f"the upload has {n:,} points, more than the limit of {max_points:,}",
+        raise ServiceError("too_many_points", f"the upload has {n:,} points, more than the limit of {max_points:,}",
                        "subsample the cloud")
     return loaded

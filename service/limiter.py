@@ -15,7 +15,7 @@ from typing import Callable
 
 from export.runtime import available_cpus
 
-from .errors import APIError
+from .errors import ServiceError
 from .metrics import Metrics
 from .settings import Settings
 
@@ -41,7 +41,7 @@ class Limiter:
 
     async def run(self, fn: Callable, timeout: float):
         if self.slots.locked() and self.waiting >= self.queue:
-            raise APIError(503, "busy", f"all {self.concurrency} inference slots are busy and {self.waiting} "
+            raise ServiceError("busy", f"all {self.concurrency} inference slots are busy and {self.waiting} "
                            "requests are waiting", "retry after the number of seconds in Retry-After",
                            {"Retry-After": "1"})
         start = time.perf_counter()
@@ -50,7 +50,7 @@ class Limiter:
         try:
             await asyncio.wait_for(self.slots.acquire(), timeout)
         except (asyncio.TimeoutError, TimeoutError):
-            raise APIError(504, "timeout", f"no inference slot became free within {timeout:g} s",
+            raise ServiceError("timeout", f"no inference slot became free within {timeout:g} s",
                            "retry later or raise AOCNN_TIMEOUT_S", {"Retry-After": "1"}) from None
         finally:
             self.waiting -= 1
@@ -70,7 +70,7 @@ class Limiter:
         try:
             return await asyncio.wait_for(asyncio.shield(future), max(timeout - waited, 0.001))
         except (asyncio.TimeoutError, TimeoutError):
-            raise APIError(504, "timeout", f"the request did not finish within {timeout:g} s",
+            raise ServiceError("timeout", f"the request did not finish within {timeout:g} s",
                            "send a smaller input or raise AOCNN_TIMEOUT_S") from None
 
     def close(self) -> None:

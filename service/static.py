@@ -7,7 +7,7 @@ from pathlib import Path
 
 from fastapi.responses import FileResponse
 
-from .errors import APIError
+from .errors import ServiceError
 
 MEDIA_TYPES = {                     # explicit: slim images have no /etc/mime.types to guess from
     ".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8", ".css": "text/css; charset=utf-8",
@@ -31,5 +31,5 @@ def static_file(root: Path, relative: str, cache: str, hint: str) -> FileRespons
     path = (root / relative).resolve()
     media = media_type(path)
     if media is None or not path.is_file() or not path.is_relative_to(root.resolve()):
-        raise APIError(404, "not_found", f"no such file: {relative}", hint)
+        raise ServiceError("not_found", f"no such file: {relative}", hint)
     return FileResponse(path, media_type=media, headers={"Cache-Control": cache})

@@ -11,7 +11,7 @@ from pathlib import Path
 from fastapi import APIRouter
 from fastapi.responses import FileResponse
 
-from ..errors import APIError, ErrorBody
+from ..errors import ServiceError, ErrorBody
 from ..static import media_type, static_file
 
 DEMO_DIR = Path(__file__).resolve().parents[1] / "demo"
@@ -63,7 +63,7 @@ async def example_list() -> dict:
             summary="One bundled example file")
 async def example(name: str) -> FileResponse:
     if not any(e["name"] == name for e in examples()):
-        raise APIError(404, "not_found", f"no such example: {name}", "GET /demo/examples lists them")
+        raise ServiceError("not_found", f"no such example: {name}", "GET /demo/examples lists them")
     return _file(EXAMPLES_DIR, name)
 
 

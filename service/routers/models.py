@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from export.bundle import Task
 from fastapi import APIRouter, Depends
 
 from ..deps import engine, require_key
@@ -16,7 +17,7 @@ async def models(eng: Engine = Depends(engine)) -> ModelsResponse:
     out = []
     for served in eng.models.values():
         b = served.bundle
-        image = b.task == "image-to-shape"
+        image = b.task == Task.IMAGE_TO_SHAPE
         out.append(ModelInfo(task=b.task, name=b.name, version=b.version, depth=b.octree.depth,
                              min_depth=b.octree.adaptive_depth, input=b.input, categories=b.categories,
                              graphs={n: GraphInfo(file=g.file, sha256=g.sha256) for n, g in b.graphs.items()},

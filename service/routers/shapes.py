@@ -4,9 +4,13 @@ shape -> categories.  Uploads are multipart fields; the work runs in the engine'
 from __future__ import annotations
 
 import numpy as np
+from typing import Annotated
+
 from fastapi import APIRouter, Depends, File, Header, Query, UploadFile
 from fastapi.responses import Response
+from pydantic import BaseModel, Field, model_validator
 
+from export.bundle import Task
 from model.formats import IMAGE_FORMATS
 from model.octree.build import MAX_BUILD_DEPTH
 from model.octree.symmetry import MIN_SUPPORT, Mirror
@@ -14,8 +18,9 @@ from model.image.frame import Framed, upload_box
 from model.surface import DEFAULT_SURFACE
 
 from ..deps import engine, require_key
-from ..engine import Engine, Request
-from ..errors import ERROR_RESPONSES, APIError
+from ..engine import Engine
+from ..errors import ERROR_RESPONSES, ServiceError
+from ..jobs import ImageJob, MeshOptions, ScanJob
 from ..meshes import FORMATS, MeshFile, choose_format
 from ..metrics import StageTimer
 from ..schemas import ClassifyResponse, ClassScore, Debug, Format, RemoveBackground, Surface, Up
@@ -39,15 +44,8 @@ IMAGE_RESPONSE = {200: {"description": "the mesh (headers: X-Surface, X-Mesh-Fac
                         "headers": {k: {"description": d, "schema": {"type": "string"}}
                                     for k, d in FRAMING_HEADERS.items()}},
                   **ERROR_RESPONSES}
-FORMAT_Q = Query(None, description="glb (default), gltf, ply or obj; an Accept header may choose too")
 DEPTH_Q = Query(None, ge=1, le=MAX_BUILD_DEPTH, description="decode only down to this depth (a coarser, faster level "
                 "of detail; the model's range is in GET /v1/models: min_depth..depth)")
-COLOR_Q = Query(False, description="colour the mesh by the octree depth of the leaf each vertex comes from")
-FACES_Q = Query(None, ge=4, le=10_000_000, description="a face budget for the watertight surface: simplified "
-                "(staying closed) until it has at most this many faces")
-SURFACE_Q = Query(DEFAULT_SURFACE, description="watertight: a closed, consistently oriented 2-manifold mesh (it "
-                  "can be 3D-printed, voxelised or used as a collider); patches: the paper's output, one planar "
-                  "patch per octree leaf, with cracks between them")
 REMOVE_BACKGROUND_Q = Query("auto", description="auto: an image with transparency uses its alpha, an opaque photo "
                             "the foreground network's mask (when the model has one, GET /v1/models: "
                             "foreground_network), else its border colour; true: the same, but an opaque photo is "
@@ -67,6 +65,36 @@ UP_Q = Query("y", description="the upload's up axis: y (the models' convention, 
              "standing on +Y, and a completed shape is turned back, so it comes in the upload's coordinates")
 DEBUG_Q = Query(None, description="mask: answer with the mask the framing used (an 8-bit greyscale PNG of the "
                 "image's size, 255 = object) instead of the mesh; 422 no_mask when there is none")
+
+
+class MeshQuery(BaseModel):
+    """The mesh options every shape endpoint takes (query parameters)."""
+
+    model_config = {"extra": "ignore"}
+
+    format: Format | None = Field(None, description="glb (default), gltf, ply or obj; an Accept header may choose "
+                                  "too")
+    surface: Surface = Field(DEFAULT_SURFACE, description="watertight: a closed, consistently oriented 2-manifold mesh "
+                             "(it can be 3D-printed, voxelised or used as a collider); patches: the paper's output, one "
+                             "planar patch per octree leaf, with cracks between them")
+    faces: int | None = Field(None, ge=4, le=10_000_000, description="a face budget for the watertight surface: "
+                              "simplified (staying closed) until it has at most this many faces")
+    color_by_depth: bool = Field(False, description="colour the mesh by the octree depth of the leaf each vertex "
+                                 "comes from")
+
+    @model_validator(mode="after")
+    def _faces_with_watertight(self) -> MeshQuery:
+        if self.faces is not None and self.surface != "watertight":
+            raise ValueError("faces applies to surface=watertight only (patches are one per leaf): drop faces, or "
+                             "ask for surface=watertight")
+        return self
+
+    def options(self, accept: str | None, depth: int | None) -> MeshOptions:
+        """The engine's mesh options of these parameters, the Accept header and a depth."""
+        return MeshOptions(choose_format(self.format, accept), depth, self.color_by_depth, self.surface, self.faces)
+
+
+MESH_Q = Annotated[MeshQuery, Query()]
 
 
 def mesh_response(mesh: MeshFile, name: str, timer: StageTimer, model: str = "", version: str = "",
@@ -90,67 +118,54 @@ def framing_headers(framed: Framed, ratio: float) -> dict[str, str]:
     return headers
 
 
-def _check_faces(surface: str, faces: int | None) -> None:
-    if faces is not None and surface != "watertight":
-        raise APIError(422, "invalid_request", "faces applies to surface=watertight only (patches are one per leaf)",
-                       "drop faces, or ask for surface=watertight")
-
-
 async def _read(upload: UploadFile) -> tuple[bytes, str | None]:
     return await upload.read(), upload.filename
 
 
-async def _submit(eng: Engine, task: str, request: Request) -> MeshFile:
-    """Through the task's dynamic batcher; a request's own error is raised for it alone."""
-    return await eng.batchers[task].submit(request)
+async def _submit(eng: Engine, task: Task, job):
+    """Through the task's dynamic batcher; a job's own error is raised for it alone."""
+    return await eng.batchers[task].submit(job)
 
 
 @router.post("/image-to-shape", response_class=Response, responses=IMAGE_RESPONSE,
              summary="A photo of one object -> its 3D shape as a mesh (closed, or the leaf patches)")
-async def image_to_shape(image: UploadFile = File(..., description=f"{IMAGE_FORMATS} of one object"),
-                         format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q, surface: Surface = SURFACE_Q,
-                         faces: int | None = FACES_Q, color_by_depth: bool = COLOR_Q,
-                         remove_background: RemoveBackground = REMOVE_BACKGROUND_Q,
+async def image_to_shape(mesh: MESH_Q, image: UploadFile = File(..., description=f"{IMAGE_FORMATS} of one object"),
+                         depth: int | None = DEPTH_Q, remove_background: RemoveBackground = REMOVE_BACKGROUND_Q,
                          foreground_ratio: float | None = FOREGROUND_RATIO_Q, debug: Debug | None = DEBUG_Q,
                          accept: str | None = Header(None), eng: Engine = Depends(engine)) -> Response:
-    b = eng.model("image-to-shape").bundle
-    _check_faces(surface, faces)
+    b = eng.model(Task.IMAGE_TO_SHAPE).bundle
     data, _ = await _read(image)
     timer = StageTimer(eng.metrics)
-    request = Request(data, choose_format(format, accept), depth, color_by_depth, timer, surface=surface, faces=faces,
-                      remove_background=remove_background, foreground_ratio=foreground_ratio)
+    job = ImageJob(data, mesh.options(accept, depth), timer, remove_background, foreground_ratio)
     ratio = b.image_spec().foreground_ratio if foreground_ratio is None else foreground_ratio
     if debug == "mask":                  # only the framing: no encoder, no decoder
-        eng.check_depth(eng.model("image-to-shape"), depth)
-        png = await eng.limiter.run(lambda: eng.mask_png(request), eng.settings.timeout_s)
+        eng.check_depth(eng.model(Task.IMAGE_TO_SHAPE), depth)
+        png, framed = await eng.limiter.run(lambda: eng.mask_png(job), eng.settings.timeout_s)
         headers = {"Content-Disposition": 'inline; filename="mask.png"', "Server-Timing": timer.header(),
                    "X-Model-Name": b.name, "X-Model-Version": b.version}
-        return Response(png, media_type="image/png", headers=headers | framing_headers(request.framed, ratio))
-    mesh = await _submit(eng, "image-to-shape", request)
-    return mesh_response(mesh, "shape", timer, b.name, b.version, framing_headers(request.framed, ratio))
+        return Response(png, media_type="image/png", headers=headers | framing_headers(framed, ratio))
+    result = await _submit(eng, Task.IMAGE_TO_SHAPE, job)
+    return mesh_response(result.mesh, "shape", timer, b.name, b.version, framing_headers(result.framed, ratio))
 
 
 @router.post("/complete", response_class=Response, responses=MESH_RESPONSE,
              summary="A partial, noisy point cloud -> the completed shape, in the input's coordinates")
-async def complete(points: UploadFile = File(..., description="PLY (ascii/binary), XYZ/TXT, NPY, NPZ or OBJ "
-                                              "vertices, with or without normals; points far from the rest (at "
-                                              "most a tenth of them, beyond an empty gap to 3 times the rest's "
-                                              "radius: flying pixels, a reflection) are dropped, and "
-                                              "X-Points-Dropped says how many"),
-                   format: Format | None = FORMAT_Q, depth: int | None = DEPTH_Q, surface: Surface = SURFACE_Q,
-                   faces: int | None = FACES_Q, color_by_depth: bool = COLOR_Q, keep_scan: bool = KEEP_SCAN_Q,
-                   symmetry: bool = SYMMETRY_Q, up: Up = UP_Q, accept: str | None = Header(None),
-                   eng: Engine = Depends(engine)) -> Response:
-    b = eng.model("completion").bundle
-    _check_faces(surface, faces)
+async def complete(mesh: MESH_Q,
+                   points: UploadFile = File(..., description="PLY (ascii/binary), XYZ/TXT, NPY, NPZ or OBJ "
+                                             "vertices, with or without normals; points far from the rest (at "
+                                             "most a tenth of them, beyond an empty gap to 3 times the rest's "
+                                             "radius: flying pixels, a reflection) are dropped, and "
+                                             "X-Points-Dropped says how many"),
+                   depth: int | None = DEPTH_Q, keep_scan: bool = KEEP_SCAN_Q, symmetry: bool = SYMMETRY_Q,
+                   up: Up = UP_Q, accept: str | None = Header(None), eng: Engine = Depends(engine)) -> Response:
+    b = eng.model(Task.COMPLETION).bundle
     data, filename = await _read(points)
     timer = StageTimer(eng.metrics)
-    request = Request(data, choose_format(format, accept), depth, color_by_depth, timer, filename, surface, faces,
-                      keep_scan=keep_scan, symmetry=symmetry, up=up)
-    mesh = await _submit(eng, "completion", request)
-    return mesh_response(mesh, "completed", timer, b.name, b.version,
-                         {"X-Keep-Scan": "true" if keep_scan else "false", "X-Symmetry": symmetry_header(request.mirror),
-                          "X-Points-Dropped": str(request.strays)})
+    job = ScanJob(data, filename, mesh.options(accept, depth), timer, keep_scan, symmetry, up)
+    result = await _submit(eng, Task.COMPLETION, job)
+    return mesh_response(result.mesh, "completed", timer, b.name, b.version,
+                         {"X-Keep-Scan": "true" if keep_scan else "false", "X-Symmetry": symmetry_header(result.mirror),
+                          "X-Points-Dropped": str(result.strays)})
 
 
 def symmetry_header(mirror: Mirror | None) -> str:
@@ -164,28 +179,25 @@ def symmetry_header(mirror: Mirror | None) -> str:
 
 @router.post("/octree", response_class=Response, responses=MESH_RESPONSE,
              summary="A mesh or point cloud -> the surface of its patch-guided adaptive octree (no learning)")
-async def octree(shape: UploadFile = File(..., description="a mesh (OBJ, OFF, STL, PLY, GLB, glTF) or a point "
-                                           "cloud; a cloud's points far from the rest are dropped (X-Points-Dropped "
-                                           "says how many; see /v1/complete)"),
+async def octree(mesh: MESH_Q,
+                 shape: UploadFile = File(..., description="a mesh (OBJ, OFF, STL, PLY, GLB, glTF) or a point "
+                                          "cloud; a cloud's points far from the rest are dropped (X-Points-Dropped "
+                                          "says how many; see /v1/complete)"),
                  depth: int = Query(6, ge=2, le=MAX_BUILD_DEPTH, description="octree depth (at most "
                                     "AOCNN_MAX_OCTREE_DEPTH, 8 by default)"),
                  threshold: float | None = Query(None, gt=0, le=64, description="split threshold in finest voxels "
                                                  "(default the paper's sqrt(3)/2)"),
                  full: bool = Query(False, description="the full O-CNN octree instead of the adaptive one"),
-                 format: Format | None = FORMAT_Q, surface: Surface = SURFACE_Q, faces: int | None = FACES_Q,
-                 color_by_depth: bool = COLOR_Q, accept: str | None = Header(None),
-                 eng: Engine = Depends(engine)) -> Response:
-    _check_faces(surface, faces)
+                 accept: str | None = Header(None), eng: Engine = Depends(engine)) -> Response:
     if depth > eng.settings.max_octree_depth:
-        raise APIError(422, "invalid_depth", f"depth must be at most {eng.settings.max_octree_depth}, got {depth}",
-                       "ask for a smaller depth (or raise AOCNN_MAX_OCTREE_DEPTH)")
+        raise ServiceError("invalid_depth", f"depth must be at most {eng.settings.max_octree_depth}, got {depth}",
+                           "ask for a smaller depth (or raise AOCNN_MAX_OCTREE_DEPTH)")
     data, filename = await _read(shape)
-    fmt = choose_format(format, accept)
+    options = mesh.options(accept, depth)
     timer = StageTimer(eng.metrics)
-    mesh, strays = await eng.limiter.run(
-        lambda: eng.octree(data, filename, depth, threshold, full, fmt, color_by_depth, timer, surface, faces),
-        eng.settings.timeout_s)
-    return mesh_response(mesh, "octree", timer, extra={"X-Points-Dropped": str(strays)})
+    result, strays = await eng.limiter.run(lambda: eng.octree(data, filename, threshold, full, options, timer),
+                                           eng.settings.timeout_s)
+    return mesh_response(result, "octree", timer, extra={"X-Points-Dropped": str(strays)})
 
 
 @router.post("/classify", response_model=ClassifyResponse, responses=ERROR_RESPONSES,
@@ -203,7 +215,7 @@ async def classify(response: Response, shape: UploadFile = File(..., description
                                       "(the paper's test-time vote; 12x the work)"),
                    up: Up = UP_Q,
                    eng: Engine = Depends(engine)) -> ClassifyResponse:
-    b = eng.model("classify").bundle
+    b = eng.model(Task.CLASSIFY).bundle
     data, filename = await _read(shape)
     timer = StageTimer(eng.metrics)
     probs, strays = await eng.limiter.run(lambda: eng.classify(data, filename, vote, timer, up), eng.settings.timeout_s)

@@ -21,7 +21,7 @@ from PIL import Image
 
 from service.engine import Engine, StartupError
 from service.limiter import Limiter, plan_threads
-from service.errors import APIError
+from service.errors import ServiceError
 from service.metrics import Metrics
 from service.settings import Settings
 
@@ -259,14 +259,14 @@ def test_saturation_answers_503_with_retry_after_and_slow_work_504():
         lim = Limiter(concurrency=1, queue=0, metrics=Metrics())
         slow = asyncio.ensure_future(lim.run(lambda: time.sleep(0.4), timeout=5))
         await asyncio.sleep(0.05)
-        with pytest.raises(APIError) as busy:
+        with pytest.raises(ServiceError) as busy:
             await lim.run(lambda: 1, timeout=5)
         assert busy.value.status == 503 and busy.value.headers == {"Retry-After": "1"}
         await slow
-        with pytest.raises(APIError) as late:
+        with pytest.raises(ServiceError) as late:
             await lim.run(lambda: time.sleep(0.3), timeout=0.05)
         assert late.value.status == 504
-        with pytest.raises(APIError) as still:                   # the timed-out work still holds its slot
+        with pytest.raises(ServiceError) as still:                   # the timed-out work still holds its slot
             await lim.run(lambda: 7, timeout=5)
         assert still.value.status == 503
         await asyncio.sleep(0.4)
@@ -276,7 +276,7 @@ def test_saturation_answers_503_with_retry_after_and_slow_work_504():
         await asyncio.sleep(0.02)
         b = asyncio.ensure_future(queued.run(lambda: "b", timeout=5))   # waits in the queue
         await asyncio.sleep(0.02)
-        with pytest.raises(APIError):
+        with pytest.raises(ServiceError):
             await queued.run(lambda: "c", timeout=5)                    # queue full
         assert await a == "a" and await b == "b"
     asyncio.run(scenario())

@@ -12,7 +12,7 @@ import trimesh
 
 from service.batching import Batcher
 from service.limiter import Limiter
-from service.errors import APIError
+from service.errors import ServiceError
 from service.metrics import Metrics
 
 from .conftest import make_client
@@ -24,13 +24,13 @@ def test_requests_within_the_window_share_one_batch_and_keep_their_own_errors():
 
     def run(requests):
         calls.append(list(requests))
-        return [APIError(400, "bad", f"bad {r}", "fix it") if r < 0 else r * 10 for r in requests]
+        return [ServiceError("invalid_points", f"bad {r}", "fix it") if r < 0 else r * 10 for r in requests]
 
     async def scenario():
         b = Batcher(run, Limiter(1, 4, Metrics()), window_s=0.05, max_batch=3, timeout=5)
         results = await asyncio.gather(*[b.submit(r) for r in (1, -2, 3, 4)], return_exceptions=True)
         assert results[0] == 10 and results[2] == 30 and results[3] == 40
-        assert isinstance(results[1], APIError) and results[1].message == "bad -2"
+        assert isinstance(results[1], ServiceError) and results[1].message == "bad -2"
         assert [len(c) for c in calls] == [3, 1]                 # max_batch 3, then the rest
         calls.clear()
         off = Batcher(run, Limiter(1, 4, Metrics()), window_s=0, max_batch=8, timeout=5)
