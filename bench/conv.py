@@ -37,9 +37,9 @@ import numpy as np
 import torch
 
 from bench.octree_build import DEFAULT_MESH_DIR, import_ocnn, ocnn_inputs, sample_points, table, torch_threads
+from model.cli import command_parser
 from model.nn import OctreeConv, octree_conv
 from model.octree import build_octree
-from model.cli import command_parser
 
 OURS, ONE, PER_OFFSET = "ours", "ours, one gather", "27 gathers+GEMMs"
 OCNN_EXPLICIT, OCNN_BLOCK = "ocnn explicit_gemm", "ocnn block_gemm"
@@ -62,7 +62,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--channels", type=int, default=32, help="input and output channels (default 32)")
     p.add_argument("--repeats", type=int, default=7, help="timed rounds; the median is reported (default 7)")
     p.add_argument("--mesh", default="stanford_bunny.obj", help="mesh file in --mesh-dir (default stanford_bunny.obj)")
-    p.add_argument("--mesh-dir", default=DEFAULT_MESH_DIR, help="folder of the meshes (default: ../shared/meshes beside the checkout)")
+    p.add_argument("--mesh-dir", default=DEFAULT_MESH_DIR,
+                    help="folder of the meshes (default: ../shared/meshes beside the checkout)")
     p.add_argument("--json", metavar="PATH", help="also write a JSON summary here")
     return p.parse_args(argv)
 

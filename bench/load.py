@@ -25,6 +25,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import httpx2 as httpx
+
 from model.cli import command_parser
 
 FIELDS = {"image-to-shape": "image", "complete": "points", "octree": "shape", "classify": "shape"}

@@ -44,9 +44,9 @@ import numpy as np
 import torch
 import trimesh
 
+from model.cli import command_parser
 from model.octree import Normalization, build_octree
 from model.octree.pointcloud import normalization_of
-from model.cli import command_parser
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DEFAULT_MESH_DIR = os.path.join(REPO_ROOT, "..", "shared", "meshes")
@@ -77,7 +77,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--points", type=int, default=100_000, help="points sampled per mesh (default 100000)")
     p.add_argument("--meshes", nargs="+", default=DEFAULT_MESHES,
                    help="mesh file names inside --mesh-dir, or paths (default: " + " ".join(DEFAULT_MESHES) + ")")
-    p.add_argument("--mesh-dir", default=DEFAULT_MESH_DIR, help="folder of the meshes (default: ../shared/meshes beside the checkout)")
+    p.add_argument("--mesh-dir", default=DEFAULT_MESH_DIR,
+                    help="folder of the meshes (default: ../shared/meshes beside the checkout)")
     p.add_argument("--json", metavar="PATH", help="also write a JSON summary here")
     return p.parse_args(argv)
 

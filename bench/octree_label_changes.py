@@ -27,10 +27,10 @@ from scipy.spatial import cKDTree
 
 import model.octree.patch_error as patch_error
 from bench.octree_build import DEFAULT_MESH_DIR, mesh_files, mesh_samples
+from model.cli import command_parser
 from model.octree import LEAF, SPLIT, build_octree
 from model.octree.geometry import MAX_POLYGON, cube_polygons, patch_probes, polygon_distance
 from model.octree.octree import Octree
-from model.cli import command_parser
 
 
 @dataclass
@@ -110,7 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = command_parser("python -m bench.octree_label_changes", __doc__, [
         "python -m bench.octree_label_changes --mesh-dir ../shared/meshes"])
     ap.add_argument("--meshes", nargs="*", default=None, help="file names in --mesh-dir (default all)")
-    ap.add_argument("--mesh-dir", default=DEFAULT_MESH_DIR, help="folder of the meshes (default: ../shared/meshes beside the checkout)")
+    ap.add_argument("--mesh-dir", default=DEFAULT_MESH_DIR,
+                    help="folder of the meshes (default: ../shared/meshes beside the checkout)")
     ap.add_argument("--depths", type=int, nargs="+", default=[6, 7, 8], help="octree depths (default 6 7 8)")
     ap.add_argument("--points", type=int, default=100_000, help="points sampled per mesh for the build (default 100000)")
     ap.add_argument("--dense", type=int, default=2_000_000, help="mesh samples of the dense reference (default 2000000)")

@@ -21,6 +21,7 @@ import statistics
 import subprocess
 import sys
 import time
+
 from model.cli import command_parser
 
 CASES = ("ours full", "ours adaptive", "ocnn full")

@@ -23,8 +23,8 @@ import types
 import numpy as np
 
 from bench.octree_build import DEFAULT_MESH_DIR, mesh_files, sample_points
-from model.octree import build_octree
 from model.cli import command_parser
+from model.octree import build_octree
 
 
 def load_other(path: str) -> types.ModuleType:
@@ -88,11 +88,13 @@ def main(argv: list[str] | None = None) -> int:
         "python -m bench.octree_versions --other ../aocnn-e951434 --equal"])
     ap.add_argument("--other", required=True, help="path of the other checkout (its repository root)")
     ap.add_argument("--meshes", nargs="*", default=None, help="file names in --mesh-dir (default: the bench's meshes)")
-    ap.add_argument("--mesh-dir", default=DEFAULT_MESH_DIR, help="folder of the meshes (default: ../shared/meshes beside the checkout)")
+    ap.add_argument("--mesh-dir", default=DEFAULT_MESH_DIR,
+                    help="folder of the meshes (default: ../shared/meshes beside the checkout)")
     ap.add_argument("--depth", type=int, default=8, help="octree depth of the timing (default 8)")
     ap.add_argument("--repeats", type=int, default=7, help="timed runs; the median is reported (default 7)")
     ap.add_argument("--equal", action="store_true", help="compare labels and delta_O instead of timing")
-    ap.add_argument("--previous-closing-edge", action="store_true", help="build this checkout with the boundary-probe rule before commit 22afaf2")
+    ap.add_argument("--previous-closing-edge", action="store_true",
+                    help="build this checkout with the boundary-probe rule before commit 22afaf2")
     args = ap.parse_args(argv)
     if not os.path.isdir(os.path.join(args.other, "model", "octree")):
         print(f"octree_versions: no model/octree under {args.other}", file=sys.stderr)

@@ -36,17 +36,17 @@ from export.bundle import load_bundle
 from export.exporter import export, load_source
 from export.quantize import quantize
 from export.runtime import Runtime
-from model.data.partial import partial_scan
+from model.cli import command_parser
 from model.data.dataset import unit_mesh
+from model.data.partial import partial_scan
 from model.data.render import R2N2_MAX_DISTANCE, render
 from model.data.shapes import CATEGORIES, generate
 from model.decode import decode
+from model.image.frame import prepare_image
 from model.networks import TorchSteps
 from model.octree import build_octree
 from model.octree.batch import merge_octrees, split_octree
 from model.octree.patches import patches_to_mesh
-from model.image.frame import ImageSpec, prepare_image
-from model.cli import command_parser
 
 TARGET_SPEEDUP, TARGET_BOOKKEEPING = 2.0, 0.20
 

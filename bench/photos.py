@@ -61,11 +61,11 @@ def reconstruct(data: bytes, runtime, remove_background: str = "auto",
     from model.decode import DECODED_NORMALIZATION
     from model.image.decode import decode_photo
     from model.image.mask import MaskSpec
-    from model.train.images import frame_or_whole
     from model.surface import surface_mesh
+    from model.train.images import frame_or_whole
     from service.meshes import encode
 
-    spec, t = runtime.bundle.image_spec(), {}
+    spec = runtime.bundle.image_spec()
     t0 = time.perf_counter()
     rgba = decode_photo(data, work_side=work_side).rgba
     t1 = time.perf_counter()
@@ -234,8 +234,8 @@ def classify_output(classifier, octree, depth: int) -> tuple[str, float]:
 def figure(rows: list[tuple[str, np.ndarray, object, object]], path: str) -> None:
     """One row per photo: the photo, the mask used, the encoder's input (the crop) and the output's
     patches, each a tile."""
-    from research.figures import TILE, tile
     from model.octree.patches import patches_to_mesh
+    from research.figures import TILE, tile
 
     def fit(img: Image.Image) -> Image.Image:
         img = img.copy()

@@ -110,8 +110,8 @@ def decoded_octrees(data: str, shapes: int) -> list[tuple[str, object]]:
     from export.bundle import load_bundle
     from export.runtime import Runtime
     from model.data.dataset import load_record
-    from model.octree.batch import split_octree
     from model.image.frame import prepare_image
+    from model.octree.batch import split_octree
 
     manifest = Path(data) / "manifest.json"
     if not manifest.is_file():
@@ -155,7 +155,8 @@ def main(argv: list[str] | None = None) -> int:
         patches = len(patch_mesh(tree, world=False).faces)
         dense = dense_reference(tree)
         print(f"| {name} | {sum(tree.leaves_per_depth())} | {patches} | {len(m.faces)} | {len(m.faces) / max(patches, 1):.1f} "
-              f"| {'yes' if m.closed else 'NO'} | {med * 1e3:.1f} | {worst * 1e3:.1f} | {dense * 1e3:.1f} | {worst / dense:.2f} |",
+              f"| {'yes' if m.closed else 'NO'} | {med * 1e3:.1f} | {worst * 1e3:.1f} | {dense * 1e3:.1f} "
+              f"| {worst / dense:.2f} |",
               flush=True)
     if args.figure:
         decoded = [x for x in inputs if x[0].startswith("decoded")]
@@ -168,10 +169,10 @@ def accuracy(depths: list[int], mesh_dir: str) -> int:
     """The ``--accuracy`` table (module docstring)."""
     import trimesh
 
-    from research.evaluate import fscore_threshold
     from model.octree.metrics import Reference
     from model.surface import surface_mesh
     from model.surface.checks import is_closed
+    from research.evaluate import fscore_threshold
 
     print("| mesh | depth | thin share | patches CD | closed CD | ratio | MC CD | MC ratio "
           "| F: patches / closed / MC | normals: patches / closed / MC | closed: ours / MC |")
@@ -222,8 +223,8 @@ def figure(inputs: list[tuple[str, object]], out: str) -> None:
     import trimesh
     from PIL import Image, ImageDraw
 
-    from research.figures import TILE, VIEW, tile
     from model.surface import surface_mesh
+    from research.figures import TILE, VIEW, tile
 
     rows = []
     for name, tree in inputs:

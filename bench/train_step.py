@@ -23,6 +23,7 @@ import time
 from typing import TYPE_CHECKING
 
 import numpy as np
+
 from model.cli import command_parser
 
 if TYPE_CHECKING:
@@ -53,8 +54,8 @@ def measure(task: str, arch: str, depth: int, batch: int, steps: int, threads: i
     """Runs in a child process: median step time and peak memory of one configuration."""
     import torch
 
-    from model.networks import ARCHS, CLASSIFIER_ARCHS, Autoencoder, Classifier
     from model.data.shapes import CATEGORIES
+    from model.networks import ARCHS, CLASSIFIER_ARCHS, Autoencoder, Classifier
 
     if threads:
         torch.set_num_threads(threads)

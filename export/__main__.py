@@ -22,7 +22,6 @@ import time
 import numpy as np
 
 from model.cli import command_parser
-
 from model.octree import EMPTY
 
 from .bundle import BundleError, load_bundle
@@ -92,6 +91,7 @@ def verify_against(path: str, source: str, foreground: str | None = None) -> dic
     model of ``source`` (a checkpoint or run folder; ``foreground``: the image bundle's foreground
     network's): every graph step by step."""
     try:
+        # deferred: the exporter needs torch, and --verify alone runs where only onnxruntime is installed
         from .exporter import foreground_photos, load_foreground, load_source, self_check
     except ImportError as exc:
         raise BundleError(f"--against needs torch and onnx (pip install -e '.[export]'): {exc}") from None
@@ -149,13 +149,14 @@ def main(argv: list[str] | None = None) -> int:
                   f"{s['bytes'] / 1e6:.1f} MB" + (f", decoded {s['decoded_leaves']} patches in {s['decode_ms']} ms"
                                                   if "decode_ms" in s else ""))
             if args.against:
-                print(f"{args.verify}: matches {args.against}: {_agreement(verify_against(args.verify, args.against, args.foreground))}")
+                check = verify_against(args.verify, args.against, args.foreground)
+                print(f"{args.verify}: matches {args.against}: {_agreement(check)}")
             return 0
         if args.against:
             ap.error("--against goes with --verify BUNDLE_DIR")
         if not args.source or not args.out:
             ap.error("SOURCE and --out are required (or --verify BUNDLE_DIR)")
-        from .exporter import export
+        from .exporter import export  # deferred: torch (see verify_against)
         meta = export(args.source, args.out, name=args.name, force=args.force, foreground=args.foreground,
                       foreground_precision=args.foreground_precision)
         print(f"{args.out}: {meta['task']} {meta['name']} {meta['version']}, {len(meta['graphs'])} graphs; "

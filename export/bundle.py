@@ -19,9 +19,9 @@ from pathlib import Path
 
 from model.decode import empty_bias_of
 from model.files import sha256_file
-from model.octree.build import MAX_BUILD_DEPTH
 from model.image.frame import ImageSpec
 from model.image.mask import MaskSpec
+from model.octree.build import MAX_BUILD_DEPTH
 
 BUNDLE_FORMAT = 2
 """The newest bundle layout this code reads and writes; newer bundles are refused.  2 adds guided

@@ -20,20 +20,21 @@ import numpy as np
 import onnx
 import torch
 
+from model.checkpoint import Loaded, load_model
+from model.data.photos import generated_photos
 from model.data.shapes import CATEGORIES
 from model.files import UMASK, json_text, sha256_file, write_atomic
+from model.image.mask import MaskSpec, mask_input
 from model.networks import ARCHS, CLASSIFIER_ARCHS, OctreeDecoder, TorchSteps
 from model.nn.tensors import OctreeTensors
 from model.octree import DEFAULT_THRESHOLD
 from model.octree.pointcloud import SCAN_FRAME_MARGIN
-from model.image.mask import MaskSpec
-from model.checkpoint import Loaded, load_model
 from model.train.tasks import TASKS
 
 from . import graphs as G
 from .bundle import BUNDLE_FORMAT, BUNDLE_TASKS, MANIFEST, BundleError, GraphSpec, Task, load_bundle
-from .quantize import output_range, quantize_static_graph
 from .parity import RELATIVE_TOLERANCE, ParityReport, decoder_parity, probe_octrees, relative_error
+from .quantize import output_range, quantize_static_graph
 from .runtime import Runtime
 
 POINT_LIMITS = {"min_points": 100, "max_points": 1_000_000}
@@ -147,8 +148,6 @@ def foreground_photos(size: int, seed: int = 0) -> tuple[list[np.ndarray], list[
     """Calibration and check inputs of a foreground network, (1, 3, size, size) each: the
     generator's training shapes photographed (:func:`model.data.photos.generated_photos`), every
     other photo in each list."""
-    from model.data.photos import generated_photos
-    from model.image.mask import mask_input
 
     spec = MaskSpec(size=size)
     inputs = [mask_input(p.rgb, spec)[None] for p in generated_photos(per_category=2, views=2, seed=seed)]

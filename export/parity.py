@@ -23,8 +23,8 @@ import numpy as np
 
 from model.decode import DecoderSteps, Guide, decode, status_to_labels
 from model.octree import EMPTY, LEAF, Octree, build_octree, validate
-from model.octree.batch import merge_octrees
 from model.octree import keys as morton
+from model.octree.batch import merge_octrees
 
 RELATIVE_TOLERANCE = 1e-4
 """The largest difference allowed between two implementations' float32 outputs, relative to the

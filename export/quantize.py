@@ -21,18 +21,20 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import onnx
+from onnx import numpy_helper
+from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_dynamic, quantize_static
 
+from model.cli import command_parser
 from model.files import json_text, sha256_file, write_atomic
 
 from .bundle import MANIFEST, BundleError, load_bundle
-from model.cli import command_parser
 
 GROUPS = {"encoder": ("image_encoder", "octree_encoder"), "decoder": ("decoder_",), "all": ("",)}
 
 
 def quantize(bundle_dir: str | Path, out: str | Path, group: str = "all") -> list[str]:
     """Write the quantised copy; returns the names of the quantised graphs."""
-    from onnxruntime.quantization import QuantType, quantize_dynamic
 
     bundle = load_bundle(bundle_dir)
     out = Path(out)
@@ -66,7 +68,6 @@ def quantize_static_graph(model: bytes, calibration: list[dict[str, np.ndarray]]
     channel (``reduce_range``: 7 bits; ``signed_weights`` False: unsigned), activations unsigned int8
     with ranges (min-max) observed on the ``calibration`` input feeds.  onnxruntime's CPU provider
     runs the quantised convolutions as int8 kernels."""
-    from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
 
     if not calibration:
         raise BundleError("static quantisation needs at least one calibration input")
@@ -96,8 +97,6 @@ def output_range(model: bytes, output: str) -> tuple[float, float, float]:
     """(step, lowest, highest): the quantisation step of a QDQ graph's float ``output`` and the
     range its int8 values can express (the DequantizeLinear that gives it); BundleError when the
     output is not dequantised from int8."""
-    import onnx
-    from onnx import numpy_helper
 
     graph = onnx.load_from_string(model).graph
     init = {t.name: numpy_helper.to_array(t) for t in graph.initializer}

@@ -16,8 +16,8 @@ import numpy as np
 import onnxruntime as ort
 
 from model.decode import Guide, decode
-from model.octree import Octree
 from model.image.mask import mask_input, mask_output
+from model.octree import Octree
 
 from .bundle import Bundle, BundleError, GraphSpec
 

@@ -23,6 +23,7 @@ export carries it into the bundle, and the service and ``research.evaluate --kee
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import sys
 from pathlib import Path
@@ -30,20 +31,22 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from model.checkpoint import load_model
+from model.cli import command_parser
+from model.data.photos import photo_split_view
 from model.files import atomic_path, json_text, write_atomic
 from model.networks import OctreeDecoder
 from model.networks.decoder import teacher_skips
 from model.nn.tensors import OctreeTensors
 from model.octree import SPLIT
-from model.checkpoint import load_model
-from .evaluate import MISSING_GAP, decoded_points, split_subset
-from .results import category_means
 from model.octree.metrics import Reference, mean_squared_distance, missing_part
-from .results_table import paired_difference
 from model.train.completion import truth_view
 from model.train.config import KEEP_SCAN_FILE, MASK_GUIDE_FILE, load_checkpoint, write_weights
 from model.train.tasks import TASKS, encode_with_guide
-from model.cli import command_parser
+
+from .evaluate import MISSING_GAP, decoded_points, mask_ious, split_subset, torch_segment
+from .results import category_means
+from .results_table import paired_difference
 
 BIASES = np.round(np.arange(-4.0, 4.0001, 0.05), 2)
 
@@ -246,10 +249,7 @@ def calibrate_mask_guide(run: str, data: str, split: str = "val", limit: int | N
     the service's path, and record it with the run (model.json's ``mask_guide`` of a checkpoint
     folder, else mask_guide.json of the run folder).  The network runs in torch, once per distinct
     image (looks repeat across candidates)."""
-    import dataclasses
 
-    from model.data.photos import photo_split_view
-    from .evaluate import mask_ious, torch_segment
 
     loaded = load_model(run)
     cfg = loaded.config

@@ -21,8 +21,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from model.cli import command_parser
-from .curves import lowest_step, validation_chamfer
 from model.files import atomic_path, json_text, write_atomic
+from model.train.config import STEPS_DIR
+
+from .curves import lowest_step, validation_chamfer
 
 
 @dataclass(frozen=True)
@@ -38,7 +40,6 @@ def choose(run: str | Path, data: str | Path, out: str | Path, per_category: int
     """Measure ``run``'s kept steps on ``data``'s validation split (with ``foreground``: on its
     photo-like views, as :func:`research.curves.validation_chamfer`) and copy the best to ``out``
     (weights first, then ``model.json``: a folder without ``model.json`` is no checkpoint)."""
-    from model.train.config import STEPS_DIR
 
     run, out = Path(run), Path(out)
     if not (run / STEPS_DIR).is_dir():

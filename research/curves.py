@@ -17,6 +17,7 @@ prints the step with the lowest: the checkpoint chosen on the validation split.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import sys
 from dataclasses import dataclass
@@ -25,7 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from model.cli import command_parser
-from model.files import atomic_path
+from model.files import atomic_path, json_text, sha256_file, write_atomic
+from model.train.config import STEPS_DIR, read_run
+
+from .evaluate import evaluate
 
 NOT_TERMS = {"step", "split", "lr", "seconds"}
 
@@ -94,9 +98,6 @@ def validation_chamfer(run: str | Path, data: str | Path, per_category: int = 4,
     the weights, the settings and the data are the same.  ``foreground`` (image models): measured
     as served on the shapes' photo-like views instead, their backgrounds removed by this foreground
     network (``evaluate(photos=True, foreground=...)``), kept in ``chamfer-photos.json``."""
-    from .evaluate import evaluate
-    from model.files import json_text, sha256_file, write_atomic
-    from model.train.config import STEPS_DIR
 
     manifest = Path(data) / "manifest.json"
     if not manifest.is_file():
@@ -132,9 +133,7 @@ def foreground_fingerprint(foreground: str | Path) -> dict:
     """What decides a foreground network's masks: its weights (sha256 of the float32 tensors in key
     order, the same for a run and the checkpoint packaged from it) and its guided filter.
     ValueError if ``foreground`` is no foreground network's run or checkpoint folder."""
-    import hashlib
 
-    from model.train.config import read_run
 
     saved = read_run(foreground)
     if saved.config.task != "foreground":
@@ -199,7 +198,7 @@ def log_scale(values: list[np.ndarray]) -> bool:
 def plot(curves: list[RunCurves], out: str | Path, terms: list[str] | None = None, window: int = 50) -> list[str]:
     """Draw the curves to a PNG; returns the terms drawn (default: every term that some run
     validated, else trained, on; 'total' first)."""
-    import matplotlib
+    import matplotlib  # deferred: the train extra's; only drawing needs it
     matplotlib.use("Agg")
     from matplotlib import pyplot as plt
 

@@ -23,18 +23,18 @@ import numpy as np
 import torch
 
 from model.checkpoint import load_model
+from model.cli import command_parser
 from model.data.dataset import BuildConfig, ShapeTask, load_record, scan_shape
 from model.data.partial import partial_from_scan
 from model.data.shapes import stable_hash
-from .evaluate import MISSING_GAP, decoded_points
 from model.files import json_text, write_atomic
 from model.octree import scan_frame, scan_octree, validate
 from model.octree.batch import merge_octrees
 from model.octree.metrics import chamfer_distance, mean_squared_distance, missing_part
 from model.octree.pointcloud import MIN_SCAN_POINTS, normalization_of
-from .results_table import paired_difference
-from model.cli import command_parser
 
+from .evaluate import MISSING_GAP, decoded_points
+from .results_table import paired_difference
 
 MIN_POINTS = MIN_SCAN_POINTS
 """Scans with fewer points are not completed (the service's own minimum); such shapes are left

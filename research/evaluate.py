@@ -13,12 +13,14 @@ coordinates).  Shape completion decodes in the partial scan's frame; its output 
 complete shape's own cube before the comparison, and the Chamfer distance of the partial input
 itself to the truth (what a model that adds nothing would score) is reported beside it, and so is
 completion's own measure: the mean squared distance from the truth's missing part (points more
-than two finest voxels from the scan) to the output, and to the scan itself.  Octree decoders without planes (O-CNN binary) give their finest octants' centres;
+than two finest voxels from the scan) to the output, and to the scan itself.  Octree decoders
+without planes (O-CNN binary) give their finest octants' centres;
 the point-set decoder its points; the AtlasNet decoder a 20 x 20 grid per patch.  Every output is
 also measured by the F-score at 1% of the truth's diagonal (Tatarchenko et al., CVPR 2019), which,
 unlike the Chamfer distance, does not reward an output spread over the shape's extent.  --icp also
 reports both after rigid ICP alignment of the prediction to the truth (as the paper's Table 4; the
-alignment kept where it lowers the Chamfer distance).  A shape whose decoder outputs nothing (no patch) has no Chamfer value: it is
+alignment kept where it lowers the Chamfer distance).  A shape whose decoder outputs nothing (no
+patch) has no Chamfer value: it is
 counted in ``empty_outputs`` and left out of the means.  Octree decoders with planes are also
 measured through their closed surface (:func:`model.surface.watertight_mesh`, sampled uniformly by
 area with as many points, as are the patches for this comparison): the Chamfer distance and the
@@ -41,28 +43,32 @@ import numpy as np
 import torch
 import trimesh
 
-from .align import icp
+from export.bundle import SERVED_IN, BundleError, load_bundle
+from export.runtime import Runtime
 from model.checkpoint import load_model
+from model.cli import command_parser
+from model.data.photos import photo_split_view
 from model.decode import Guide, decode, empty_bias_of
 from model.files import json_text, write_atomic
+from model.image.mask import MaskSpec, NoObjectError, mask_input, mask_iou, mask_output, object_mask
 from model.networks import AtlasNetDecoder, OctreeDecoder, PointSetDecoder, TorchSteps
 from model.networks.decoder import teacher_skips
 from model.nn.tensors import OctreeTensors
 from model.octree import LEAF, Octree
-from model.octree.metrics import Reference, mean_squared_distance, missing_part, sample_patches
 from model.octree.batch import split_octree
-from .results import category_means
 from model.octree.fuse import keep_scan
+from model.octree.geometry import ROTATIONS
+from model.octree.metrics import Reference, mean_squared_distance, missing_part, sample_patches
 from model.octree.symmetry import MIN_SUPPORT
-from model.image.mask import MaskSpec
 from model.surface import DEFAULT_SURFACE, SURFACES, surface_mesh
+from model.train.completion import truth_view
 from model.train.config import TrainConfig
 from model.train.data import manifest_rows
 from model.train.images import image_batch, photo_batch
-from model.train.completion import truth_view
 from model.train.tasks import TASKS, encode_with_guide
-from model.cli import command_parser
 
+from .align import icp
+from .results import category_means
 
 ORACLES = ("none", "structure", "all")
 
@@ -242,8 +248,6 @@ def evaluate(run: str, data: str, split: str = "test", resolution: int = 128, li
     cfg = dataclasses.replace(cfg, data=data)          # the dataset to evaluate on (not the training one)
     runtime = None
     if bundle is not None:
-        from export.bundle import SERVED_IN, BundleError, load_bundle
-        from export.runtime import Runtime
         try:
             runtime = Runtime(load_bundle(bundle))
         except BundleError as exc:
@@ -408,7 +412,6 @@ def evaluate_classifier(model, cfg: TrainConfig, run: str, split: str = "test", 
     and voted over the 12 rotations about the up axis (mean of the softmax), per category, with
     the confusion matrix.  ``runtime``: the exported bundle's onnxruntime sessions run instead of
     the torch model (``bundle`` is its folder, reported)."""
-    from model.octree.geometry import ROTATIONS
 
     task = TASKS[cfg.task]
     records = task.dataset(cfg, split, 0, limit=limit)
@@ -444,7 +447,6 @@ def evaluate_classifier(model, cfg: TrainConfig, run: str, split: str = "test", 
 def torch_segment(model, spec):
     """The foreground network of a loaded model in torch, as :meth:`export.runtime.Runtime.segment`
     runs its graph: an (H, W, 3) uint8 image to its object probability on the network's grid."""
-    from model.image.mask import mask_input, mask_output
 
     def segment(rgb: np.ndarray) -> np.ndarray:
         with torch.no_grad():
@@ -468,7 +470,6 @@ def mask_ious(photos: list, segment, spec) -> list[float]:
     """Mask IoU of each photo (a :class:`model.data.photos.Photo`) through the service's path
     (:func:`model.image.mask.object_mask` with ``segment`` and ``spec``), at its own resolution;
     0 where nothing is found."""
-    from model.image.mask import mask_iou, NoObjectError, object_mask
 
     out = []
     for photo in photos:
@@ -488,7 +489,6 @@ def evaluate_foreground(model, cfg: TrainConfig, run: str, split: str = "test", 
     clean-up, a second pass on a small object in a large photo; a photo where it finds nothing
     scores 0); per category and overall, with the share of photos above 0.9.  ``meta``: the run's
     provenance (its calibrated guided filter), for the network in torch."""
-    from model.data.photos import photo_split_view
 
     spec = runtime.bundle.mask_spec() if runtime is not None else TASKS[cfg.task].spec(cfg, meta)
     segment = runtime.segment if runtime is not None else torch_segment(model, spec)
@@ -524,7 +524,8 @@ def status_summary(confusion: np.ndarray) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = command_parser("python -m research.evaluate", __doc__, [
         "python -m research.evaluate runs/aocnn --data data/procedural --split test --out results.json",
-        "python -m research.evaluate models/checkpoints/completion --data data/procedural --bundle models/bundles/completion --out c.json"])
+        "python -m research.evaluate models/checkpoints/completion --data data/procedural "
+        "--bundle models/bundles/completion --out c.json"])
     ap.add_argument("run", help="run folder of python -m model.train (holds checkpoint.pt) or a checkpoint "
                     "folder (model.pt + model.json)")
     ap.add_argument("--data", required=True, help="dataset folder built by python -m model.data build")
@@ -602,7 +603,8 @@ def main(argv: list[str] | None = None) -> int:
         text += f"; the partial inputs themselves {results['input_chamfer_x1e3_category_mean']:.3f}"
     if results.get("watertight_chamfer_x1e3_category_mean") is not None:
         text += (f"; drawn by area: patches {results['patches_area_chamfer_x1e3_category_mean']:.3f}, closed surface "
-                 f"{results['watertight_chamfer_x1e3_category_mean']:.3f} (F-score {results['patches_area_fscore_category_mean']:.3f}"
+                 f"{results['watertight_chamfer_x1e3_category_mean']:.3f} "
+                 f"(F-score {results['patches_area_fscore_category_mean']:.3f}"
                  f" and {results['watertight_fscore_category_mean']:.3f}; {results['watertight_not_closed']} not closed)")
     if results.get("mask_iou_category_mean") is not None:
         text += f"; mask IoU {results['mask_iou_category_mean']:.3f}"

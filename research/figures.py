@@ -4,7 +4,8 @@
                             [--shapes 6] [--categories car chair ...] [--keep-scan]
 
 One row per test shape: the input (the encoder's view for image models, the partial scan for
-completion models), the truth (its adaptive octree's patches; for completion in the scan's frame), each run's output (patch meshes; point sets as small splats; AtlasNet's
+completion models), the truth (its adaptive octree's patches; for completion in the scan's frame),
+each run's output (patch meshes; point sets as small splats; AtlasNet's
 patches as grid meshes), and the first run's patches coloured by octree depth.  ``--keep-scan``
 draws completion outputs as the service sends them by default (:func:`model.octree.fuse.keep_scan`
 with each run's recorded empty bias).
@@ -21,15 +22,16 @@ import torch
 import trimesh
 from PIL import Image, ImageDraw
 
-from model.data.render import render
 from model.checkpoint import load_model
+from model.cli import command_parser
+from model.data.render import render
 from model.decode import Guide, empty_bias_of
-from .evaluate import ATLAS_GRID, decoded_points
 from model.networks import AtlasNetDecoder, OctreeDecoder
 from model.octree.patches import DEPTH_COLORS, patches_to_mesh
 from model.train.images import eval_view
 from model.train.tasks import TASKS, encode_with_guide
-from model.cli import command_parser
+
+from .evaluate import ATLAS_GRID, decoded_points
 
 TILE = 160
 VIEW = dict(azimuth_deg=35.0, elevation_deg=25.0, distance=2.6)
@@ -60,7 +62,8 @@ def depth_colors(mesh: trimesh.Trimesh) -> np.ndarray:
 
 
 def output_mesh(model, latent: torch.Tensor, resolution: int = 64, guide: Guide | None = None,
-                scans: list | None = None, empty_bias: dict[int, float] | None = None) -> list[tuple[trimesh.Trimesh, trimesh.Trimesh | None]]:
+                scans: list | None = None, empty_bias: dict[int, float] | None = None
+                ) -> list[tuple[trimesh.Trimesh, trimesh.Trimesh | None]]:
     """Per shape: the decoded surface as a mesh, and for octree decoders the depth-coloured patches
     (``guide``, ``scans`` and ``empty_bias`` as :func:`research.evaluate.decoded_points`')."""
     dec = model.decoder
@@ -99,7 +102,8 @@ def figure(data: str, runs: list[tuple[str, str]], split: str = "test", shapes: 
             break
     image_input = first_cfg.task == "image"
     scan_input = first_cfg.task == "completion"
-    heads = (["input"] if image_input else ["partial scan"] if scan_input else []) + ["truth"] + [n for n, _, _ in models] + [f"{models[0][0]} by depth"]
+    heads = ((["input"] if image_input else ["partial scan"] if scan_input else []) + ["truth"]
+             + [n for n, _, _ in models] + [f"{models[0][0]} by depth"])
     sheet = Image.new("RGB", (TILE * len(heads), 18 + TILE * len(chosen)), (255, 255, 255))
     draw = ImageDraw.Draw(sheet)
     for c, h in enumerate(heads):

@@ -25,8 +25,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from model.files import json_text, sha256_file, write_atomic
 from model.cli import command_parser
+from model.data.__main__ import main as build_main
+from model.files import json_text, sha256_file, write_atomic
+from model.train.__main__ import main as train_main
+from model.train.config import INIT_FILE, STEPS_DIR, read_run, write_weights
+
+from .calibrate import main as calibrate_main
+from .evaluate import main as evaluate_main
 
 if TYPE_CHECKING:
     from model.train.config import TrainConfig
@@ -110,7 +116,6 @@ def package(run: Path, data: Path, out: Path, recipe: Recipe, command: list[str]
     was not trained by the recipe's commands, so none are recorded (its configuration and steps
     are); ``data_by_recipe=False``: nor was ``data`` built by its build command (the manifest's
     settings are recorded)."""
-    from model.train.config import read_run, write_weights
 
     saved = read_run(run)                  # a run folder, or a checkpoint folder such as a step the run kept
     config = saved.meta["config"]
@@ -171,7 +176,6 @@ def _paths_named_here(record: dict | None) -> dict | None:
 def _init_of(run: Path) -> dict | None:
     """The weights ``run`` started from (its ``init.json``; a step the run kept, ``RUN/steps/<step>``,
     reads its run's), or None for random weights."""
-    from model.train.config import INIT_FILE, STEPS_DIR
 
     for folder in (run, run.parent.parent if run.parent.name == STEPS_DIR else None):
         if folder is not None and (folder / INIT_FILE).is_file():
@@ -226,13 +230,8 @@ def main(argv: list[str] | None = None) -> int:
     run = work / ("student" if recipe.teacher else "run")
     final = work / "run-calibrated" if recipe.calibrate else run
     out = Path(args.out or Path("models") / "checkpoints" / recipe.task)
-    from .calibrate import main as calibrate_main
-    from model.data.__main__ import main as build_main
-    from .evaluate import main as evaluate_main
-    from model.train.__main__ import main as train_main
 
     if args.run is not None:                       # a run trained by hand: checked before anything is built
-        from model.train.config import read_run
         final = Path(args.run)
         try:
             config = read_run(final).config

@@ -7,7 +7,8 @@ Every file is written by ``python -m research.evaluate`` on the same split; ``A.
 one model's results on several splits (the held-out seed's 780 shapes) into one.  Besides the per-category
 table, each result after the first is compared with the first shape by shape: the difference of
 category means with a 95% bootstrap interval (shapes resampled within categories) and how many
-shapes each side wins and how many tie, so that a gap can be told from test-set noise.  ``--icp`` compares the Chamfer distances after
+shapes each side wins and how many tie, so that a gap can be told from test-set noise.  ``--icp``
+compares the Chamfer distances after
 ICP alignment (results evaluated with ``--icp``); ``--fscore`` the F-score at 1% of the truth's
 diagonal instead (higher is better; after ICP with ``--icp``); ``--missing`` compares completion's
 missing-part distance.  ``--surfaces`` compares, within each result, the closed surface with the
@@ -28,7 +29,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
 from model.cli import command_parser
+
 from .results import finite, join_results
 
 # The per-shape measure compared, by (--fscore, --icp): the keys research.evaluate writes.

@@ -6,17 +6,17 @@ from __future__ import annotations
 
 import sys
 
+import uvicorn
+from pydantic import ValidationError
+
+from model.cli import command_parser
+
+from .app import create_app
+from .engine import Engine, StartupError
+from .settings import Settings, describe_error, settings_table
+
 
 def main(argv: list[str] | None = None) -> int:
-    import uvicorn
-
-    from model.cli import command_parser
-
-    from pydantic import ValidationError
-
-    from .engine import StartupError
-    from .settings import Settings, describe_error, settings_table
-
     ap = command_parser("python -m service", __doc__, [
         "python -m service                      # http://127.0.0.1:8000/ (demo page), /docs (the API)",
         "AOCNN_CONCURRENCY=1 AOCNN_THREADS=2 python -m service --port 9000", "python -m service --settings"])
@@ -35,8 +35,6 @@ def main(argv: list[str] | None = None) -> int:
     except ValidationError as exc:                  # a bad AOCNN_* value or option
         print(f"error: {describe_error(exc, {k: '--' + k.replace('_', '-') for k in overrides})}", file=sys.stderr)
         return 2
-    from .app import create_app
-    from .engine import Engine
     engine = Engine(settings)
     try:
         engine.load()                               # verify every bundle before binding the port

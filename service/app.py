@@ -11,8 +11,8 @@ from fastapi import FastAPI, Request
 from fastapi.middleware.cors import CORSMiddleware
 
 from . import errors
-from .engine import Engine
 from .body_limit import BodyLimit
+from .engine import Engine
 from .routers import apidocs, demo, health, models, shapes
 from .settings import Settings
 

@@ -17,13 +17,13 @@ from export.runtime import Runtime
 from model.decode import DECODED_NORMALIZATION
 from model.image.frame import Framed, upload_mask
 from model.image.mask import MaskSpec
-from model.surface import DEFAULT_SURFACE, SURFACES, surface_mesh
 from model.octree import Octree, PointCloud, build_octree, scan_octree
-from model.octree.geometry import to_y_up, up_rotations
-from model.octree.pointcloud import MIN_SCAN_POINTS
 from model.octree.batch import merge_octrees, split_octree
 from model.octree.fuse import keep_scan
+from model.octree.geometry import to_y_up, up_rotations
+from model.octree.pointcloud import MIN_SCAN_POINTS
 from model.octree.symmetry import Mirror, symmetrize
+from model.surface import SURFACES, surface_mesh
 
 from .batching import Batcher
 from .errors import ServiceError

@@ -15,11 +15,11 @@ import zipfile
 from pathlib import Path
 
 from model.formats import IMAGE_FORMATS, MESH_FORMATS, POINT_FORMATS, identify, not_taken
+from model.image.decode import ImageError, decode_photo
+from model.image.frame import Framed, ImageSpec, frame_object
+from model.image.mask import MaskSpec, NoObjectError
 from model.octree import OctreeInputError
 from model.octree.inputs import HEADER_BYTES, LoadedInput, load_input, ply_vertex_count
-from model.image.decode import decode_photo, ImageError
-from model.image.frame import frame_object, Framed, ImageSpec
-from model.image.mask import MaskSpec, NoObjectError
 
 from .errors import ServiceError
 

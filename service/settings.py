@@ -16,8 +16,8 @@ from pydantic import Field, ValidationError
 from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from model.octree.build import MAX_BUILD_DEPTH
 from model.image.decode import MAX_PIXELS_DEFAULT
+from model.octree.build import MAX_BUILD_DEPTH
 
 DEFAULT_MODELS = Path(__file__).resolve().parents[1] / "models" / "bundles"
 ENV_PREFIX = "AOCNN_"

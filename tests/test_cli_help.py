@@ -48,34 +48,35 @@ def undocumented(parser, prefix=""):
 
 
 def _mains():
-    from model.data.__main__ import main as data_main
-    from research.evaluate import main as evaluate_main
-    from research.figures import main as figures_main
-    from research.curves import main as curves_main
-    from research.choose import main as choose_main
-    from model.octree.__main__ import main as octree_main
-    from research.release import main as release_main
-    from research.results_table import main as table_main
-    from model.train.__main__ import main as train_main
-    from export.__main__ import main as export_main
-    from export.quantize import main as quantize_main
-    from service.__main__ import main as service_main
-    from research.calibrate import main as calibrate_main
-    from bench.onnx_decode import main as bench_onnx_main
-    from bench.load import main as bench_load_main
-    from bench.octree_scaling import main as bench_scaling_main
-    from bench.train_step import main as bench_step_main
-    from research.degrade import main as degrade_main
-    from model.data.contact_sheet import main as sheet_main
     from bench.conv import main as bench_conv_main
     from bench.coverage import main as bench_coverage_main
+    from bench.load import main as bench_load_main
     from bench.octree_build import main as bench_build_main
     from bench.octree_label_changes import main as bench_labels_main
+    from bench.octree_scaling import main as bench_scaling_main
     from bench.octree_versions import main as bench_versions_main
+    from bench.onnx_decode import main as bench_onnx_main
     from bench.symmetry import main as bench_symmetry_main
+    from bench.train_step import main as bench_step_main
+    from export.__main__ import main as export_main
+    from export.quantize import main as quantize_main
+    from model.data.__main__ import main as data_main
+    from model.data.contact_sheet import main as sheet_main
+    from model.octree.__main__ import main as octree_main
+    from model.train.__main__ import main as train_main
+    from research.calibrate import main as calibrate_main
+    from research.choose import main as choose_main
+    from research.curves import main as curves_main
+    from research.degrade import main as degrade_main
+    from research.evaluate import main as evaluate_main
+    from research.figures import main as figures_main
+    from research.release import main as release_main
+    from research.results_table import main as table_main
+    from service.__main__ import main as service_main
     return {"model.data.contact_sheet": sheet_main, "bench.conv": bench_conv_main, "bench.coverage": bench_coverage_main,
             "bench.octree_build": bench_build_main, "bench.octree_label_changes": bench_labels_main,
-            "bench.octree_versions": bench_versions_main, "bench.symmetry": bench_symmetry_main, "model.train": train_main, "research.evaluate": evaluate_main, "model.data": data_main,
+            "bench.octree_versions": bench_versions_main, "bench.symmetry": bench_symmetry_main, "model.train": train_main,
+            "research.evaluate": evaluate_main, "model.data": data_main,
             "model.octree": octree_main, "research.results_table": table_main, "research.figures": figures_main,
             "research.curves": curves_main, "research.choose": choose_main,
             "research.release": release_main, "research.calibrate": calibrate_main, "export": export_main,

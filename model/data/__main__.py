@@ -22,12 +22,12 @@ import os
 import sys
 import time
 
+from ..cli import command_parser
 from ..octree.build import MAX_BUILD_DEPTH
 from ..octree.geometry import AXES
 from .compare import compare_datasets
 from .dataset import SOURCES, BuildConfig, Shard, build_dataset, layout_tasks, merge_shards, procedural_tasks
 from .shapes import CATEGORIES, GENERATORS
-from ..cli import command_parser
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
+from ..cli import command_parser
 from .render import render
 from .shapes import CATEGORIES, GENERATORS, generate
-from ..cli import command_parser
 
 
 def sheet(

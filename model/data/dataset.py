@@ -12,12 +12,16 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import multiprocessing as mp
 import re
+import shutil
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 import trimesh
+from PIL import Image
+from tqdm import tqdm
 
 from ..files import TEMP_PREFIX, npz_bytes, write_atomic
 from ..octree import build_octree
@@ -177,7 +181,6 @@ def build_record(task: ShapeTask, cfg: BuildConfig) -> dict[str, np.ndarray]:
 
 
 def _read_r2n2_views(task: ShapeTask) -> tuple[np.ndarray, np.ndarray]:
-    from PIL import Image
 
     images = np.stack([np.asarray(Image.open(p).convert("RGBA")) for p in task.image_paths])
     return images, np.array(task.cameras, dtype=np.float32).reshape(-1, 5)
@@ -281,7 +284,6 @@ def build_dataset(out: str | Path, tasks: list[ShapeTask], cfg: BuildConfig, wor
     with ``shard``, only that shard's records and ``manifest.shard-K-of-N.json`` (see :func:`merge_shards`).
     ``keep``: tasks not to build, listed in the manifest too where ``out`` already holds their
     finished records (a build of some splits keeps the others an earlier build made)."""
-    from tqdm import tqdm
 
     if shard is not None:
         tasks = [t for t in tasks if shard.holds(t)]
@@ -297,7 +299,6 @@ def build_dataset(out: str | Path, tasks: list[ShapeTask], cfg: BuildConfig, wor
     bar = tqdm(total=len(tasks), initial=len(done), desc="shapes", unit="shape", disable=not progress)
     jobs = [(str(out), t, cfg) for t in todo]
     if workers > 1 and len(jobs) > 1:
-        import multiprocessing as mp
 
         with mp.get_context("fork").Pool(workers) as pool:
             for s in pool.imap_unordered(_work, jobs):
@@ -320,7 +321,6 @@ def merge_shards(out: str | Path, shard_dirs: list[str | Path]) -> dict:
     exactly once with the same build config, that no shape appears twice, and that every record
     file exists with its manifest's sha256 (copying records that live in other folders); then
     writes ``out/manifest.json``, identical to the one a single build would write."""
-    import shutil
 
     out = Path(out)
     found: dict[int, tuple[Path, dict]] = {}

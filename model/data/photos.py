@@ -16,15 +16,16 @@ from __future__ import annotations
 
 import functools
 import io
-from pathlib import Path
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from PIL import Image, ImageDraw, ImageFilter, ImageFont
 from scipy import ndimage
 
 from ..image.mask import mask_bounds
-from .shapes import stable_hash
+from .render import render_views
+from .shapes import CATEGORIES, generate, split_of, stable_hash
 
 TRAIN_PHOTOS = ("astronaut.png", "chelsea.png", "coffee.png", "motorcycle_left.png", "brick.png", "grass.png",
                 "camera.png", "coins.png", "moon.png", "page.png", "clock_motion.png", "ihc.png", "retina.jpg", "cell.png")
@@ -75,7 +76,7 @@ class Photo:
 def real_photo(name: str) -> np.ndarray:
     """(H, W, 3) uint8 of a scikit-image sample photograph (a file of its data folder, installed
     with the package: nothing is downloaded)."""
-    import skimage
+    import skimage  # deferred: scikit-image is the train extra's, not a base dependency
 
     with Image.open(Path(skimage.__file__).parent / "data" / name) as img:
         return np.asarray(img.convert("RGB")).copy()
@@ -368,8 +369,6 @@ def generated_photos(per_category: int = 2, views: int = 2, seed: int = 0,
     the dataset renders them and composited on training backgrounds in ``style``, all drawn from
     ``seed``.  What the export calibrates a quantised foreground network with (by default on the
     scenes the shipped network was trained on, so that its int8 graph is made again bit for bit)."""
-    from .render import render_views
-    from .shapes import CATEGORIES, generate, split_of
 
     rng = np.random.default_rng(seed)
     photos = []

@@ -52,7 +52,7 @@ class Scan:
 def embree_available() -> bool:
     """True when trimesh can use the embreex ray engine."""
     try:
-        from trimesh.ray import ray_pyembree  # noqa: F401
+        from trimesh.ray import ray_pyembree  # noqa: F401  deferred: embreex is optional (x86-64 only)
     except ImportError:
         return False
     return bool(getattr(trimesh.ray, "has_embree", True))
@@ -128,11 +128,11 @@ def scan_detailed(
     if engine == "auto":
         engine = "embree" if embree_available() else "raster"
     if engine == "embree":
-        from trimesh.ray.ray_pyembree import RayMeshIntersector
+        from trimesh.ray.ray_pyembree import RayMeshIntersector  # deferred: embreex is optional
 
         intersector = RayMeshIntersector(mesh)
     elif engine == "trimesh":
-        from trimesh.ray.ray_triangle import RayMeshIntersector
+        from trimesh.ray.ray_triangle import RayMeshIntersector  # deferred: the engine asked for only
 
         intersector = RayMeshIntersector(mesh)
     elif engine != "raster":

@@ -12,7 +12,8 @@ import numpy as np
 from PIL import Image
 
 from .decode import MAX_PIXELS_DEFAULT, ImageError, decode_image
-from .mask import MaskSpec, NoObjectError, spec_from_dict, mask_bounds, object_mask
+from .mask import MaskSpec, NoObjectError, mask_bounds, object_mask, spec_from_dict
+
 
 @dataclass(frozen=True)
 class ImageSpec:

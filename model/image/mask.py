@@ -14,6 +14,7 @@ from scipy import ndimage
 
 from .decode import ImageError
 
+
 class NoObjectError(ImageError):
     """The image shows no object to reconstruct (the mask is empty or too small)."""
 

@@ -14,9 +14,9 @@ import sys
 import time
 
 import numpy as np
-
 import trimesh
 
+from ..cli import command_parser
 from ..files import json_text, write_atomic
 from ..surface import DEFAULT_SURFACE, SURFACES, surface_mesh
 from .build import DEFAULT_THRESHOLD, MAX_BUILD_DEPTH, build_octree
@@ -24,14 +24,14 @@ from .errors import OctreeInputError
 from .inputs import load_input
 from .octree import LEAF, Octree
 from .patches import depth_colors
-from ..cli import command_parser
 
 OUTPUT_EXTENSIONS = (".ply", ".glb", ".obj", ".stl", ".off")
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = command_parser("python -m model.octree", __doc__, [
-        "python -m model.octree examples/airplane.obj --depth 7 --out airplane_patches.ply --stats airplane.json --color-by-depth",
+        "python -m model.octree examples/airplane.obj --depth 7 --out airplane_patches.ply --stats airplane.json "
+        "--color-by-depth",
         "python -m model.octree scan.xyz --depth 6 --full --out scan_octree.glb"])
     ap.add_argument("input", help="mesh (obj, off, ply, stl, glb) or point cloud (ply, xyz, txt, npy, npz)")
     ap.add_argument("--depth", type=int, required=True, help=f"max depth D (1..{MAX_BUILD_DEPTH})")
@@ -118,7 +118,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"{args.out}: {stats['surface']} surface, {stats['triangles']} triangles"
-          f"{' (closed)' if stats['closed'] else ''}, {stats['patches']} patches, {stats['nodes']} nodes, depth {stats['depth']}, "
+          f"{' (closed)' if stats['closed'] else ''}, {stats['patches']} patches, {stats['nodes']} nodes, "
+          f"depth {stats['depth']}, "
           f"max patch error {stats['max_patch_error']:.4g} (threshold {stats['threshold']:.4g}), "
           f"{stats['seconds']:.2f} s"
           + (f"; {stats['points_dropped']} point(s) far from the rest dropped" if stats["points_dropped"] else ""))

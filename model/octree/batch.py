@@ -6,7 +6,7 @@ import numpy as np
 
 from . import keys as morton
 from .neighbors import build_neighbors
-from .octree import Octree, OctreeLevel
+from .octree import SPLIT, Octree, OctreeLevel
 
 _MORTON_MASK = np.uint64((1 << morton.BATCH_SHIFT) - 1)
 
@@ -68,8 +68,6 @@ def split_octree(octree: Octree, neighbors: bool = True) -> list[Octree]:
     renumbered, and neighbour tables rebuilt when the batch had them (unless ``neighbors`` is
     False: meshing and sampling need none).
     """
-    from .neighbors import build_neighbors
-    from .octree import SPLIT
 
     out = []
     bounds = [np.searchsorted(lv.key >> np.uint64(morton.BATCH_SHIFT),

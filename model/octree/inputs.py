@@ -7,6 +7,7 @@ import re
 from dataclasses import dataclass
 
 import numpy as np
+import trimesh
 
 from ..formats import MESH_FORMATS, POINT_FORMATS, identify, is_column_header, not_taken
 from .errors import OctreeInputError
@@ -53,7 +54,8 @@ def load_input(path: str, depth: int, n_points: int | None = None, seed: int = 0
     with open(path, "rb") as fh:
         kind = identify(fh.read(HEADER_BYTES))
     if kind.known and kind.loader is None:
-        raise OctreeInputError(f"{path}: {not_taken(kind, f'a mesh ({MESH_FORMATS}) or a point cloud ({POINT_FORMATS}) is needed')}")
+        needed = f"a mesh ({MESH_FORMATS}) or a point cloud ({POINT_FORMATS}) is needed"
+        raise OctreeInputError(f"{path}: {not_taken(kind, needed)}")
     if ext in TEXT_POINT_EXTENSIONS:
         return _points(_read_text(path), path)
     if ext == ".npy":
@@ -137,7 +139,6 @@ def _member(archive, name: str, path: str) -> np.ndarray:
 
 
 def _read_trimesh(path: str, depth: int, n_points: int | None, seed: int) -> LoadedInput:
-    import trimesh
 
     try:
         obj = trimesh.load(path, process=False)
@@ -224,7 +225,6 @@ def _ply_points(obj, path: str) -> LoadedInput:
 
 
 def _sample_mesh(mesh, path: str, depth: int, n_points: int | None, seed: int) -> LoadedInput:
-    import trimesh
 
     v = np.asarray(mesh.vertices, dtype=np.float64)
     if not np.isfinite(v).all():

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import trimesh
 
 from .geometry import MAX_POLYGON, cube_polygons
 from .octree import LEAF, Octree
@@ -103,7 +104,6 @@ def depth_colors(depth: np.ndarray) -> np.ndarray:
 
 def patches_to_mesh(octree: Octree, color_by_depth: bool = False, world: bool = True):
     """A trimesh of all leaf patches, in the input's coordinates (one shape) unless ``world`` is False."""
-    import trimesh
 
     m = patch_mesh(octree, world)
     colors = depth_colors(m.vertex_depth[m.faces[:, 0]]) if color_by_depth and len(m.faces) else None

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 
 def is_closed(faces: np.ndarray) -> bool:
@@ -24,8 +26,6 @@ def is_manifold(faces: np.ndarray) -> bool:
         return False
     if not len(faces):
         return True
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
 
     f = len(faces)
     n = int(faces.max()) + 1

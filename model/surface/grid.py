@@ -5,7 +5,8 @@ The grid covers the leaves' bounding box with at least :data:`PAD` cells of padd
 side, so that its outermost corners, and the cells they belong to, are outside the shape; its
 bounds are multiples of ``align`` cells, so that blocks of that many cells sit where octree
 cubes do.  Array cell ``i`` along an axis is the finest cell ``origin + i`` (cell ``c`` spans
-``[c h, (c + 1) h]``, ``h = 2^-D``); corner ``i`` is at ``(origin + i) h``.  Arrays are dense over the box; the work per leaf is in proportion to
+``[c h, (c + 1) h]``, ``h = 2^-D``); corner ``i`` is at ``(origin + i) h``.  Arrays are dense over
+the box; the work per leaf is in proportion to
 the cells of its cube.
 """
 

@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import manifold3d
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -21,7 +22,6 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, max_faces: int,
     faces (or as few as a tolerance of :data:`LARGEST` of the diagonal allows).  The tolerance is
     how far the surface may have moved.  ``vertex_depth`` is carried over from the nearest
     original vertex."""
-    import manifold3d
 
     if max_faces < 4:
         raise ValueError(f"faces must be at least 4 (a tetrahedron), got {max_faces}")

@@ -24,14 +24,14 @@ import sys
 
 import torch
 
+from ..cli import command_parser
 from ..networks import ARCHS, IMAGE_DECODERS, IMAGE_ENCODERS
+from ..networks.classifier import CLASSIFIER_ARCHS
 from ..networks.decoder import STRUCTURE_LOSSES
 from ..networks.foreground import FOREGROUND_ARCHS
-from .loop import TrainConfig, Trainer
-from ..networks.classifier import CLASSIFIER_ARCHS
 from .classify import UP_AXES
+from .loop import TrainConfig, Trainer
 from .tasks import COMPLETION_ARCHS
-from ..cli import command_parser
 
 
 def common_options() -> argparse.ArgumentParser:

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from ..octree import Octree, build_octree, validate
-from ..octree.geometry import AXES, ROTATIONS, up_rotations
 from ..octree.batch import merge_octrees
+from ..octree.geometry import AXES, ROTATIONS, up_rotations
 from ..octree.serialize import octree_from_arrays, octree_to_arrays
 from .cache import cache_dir, load_derived
 from .data import Sample, manifest_rows

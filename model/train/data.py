@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import json
+import multiprocessing as mp
 import zipfile
 import zlib
 from collections.abc import Sequence
@@ -97,7 +98,6 @@ def process_map(fn, jobs: list, workers: int = 1, chunksize: int = 4) -> list:
     module-level function or a partial of one); the results in the order of ``jobs``."""
     if workers <= 1 or len(jobs) <= 1:
         return [fn(j) for j in jobs]
-    import multiprocessing as mp
     with mp.get_context("fork").Pool(min(workers, len(jobs))) as pool:
         return pool.map(fn, jobs, chunksize=chunksize)
 

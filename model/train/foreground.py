@@ -19,13 +19,22 @@ validation reports the recall of the thin parts (:func:`thin_parts`) apart.
 from __future__ import annotations
 
 import numpy as np
-
 from scipy import ndimage
 from skimage.morphology import skeletonize
 
 from ..data.photos import Photo, PhotoStyle, mask_box, photo_composite
 from ..data.shapes import stable_hash
-from ..image.mask import (crop_input, mask_bounds, mask_input, MaskSpec, NoObjectError, object_mask, object_square, refine_square, resize_mask)
+from ..image.mask import (
+    MaskSpec,
+    NoObjectError,
+    crop_input,
+    mask_bounds,
+    mask_input,
+    object_mask,
+    object_square,
+    refine_square,
+    resize_mask,
+)
 from .data import Sample
 
 BOX_ERROR = 0.1

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..data.photos import ENCODER_STYLE, imperfect_mask, photo_composite, photo_split_view
 from ..data.render import composite
 from ..data.shapes import stable_hash
-from ..data.photos import ENCODER_STYLE, imperfect_mask, photo_composite, photo_split_view
-from ..image.frame import frame_object, Framed, ImageSpec, prepare_image
-from ..image.mask import mask_iou, MaskSpec, NoObjectError
+from ..image.frame import Framed, ImageSpec, frame_object, prepare_image
+from ..image.mask import MaskSpec, NoObjectError, mask_iou
 from .data import Sample
 
 

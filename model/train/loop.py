@@ -8,15 +8,18 @@ from __future__ import annotations
 import io
 import json
 import math
+import multiprocessing as mp
 import os
 import pickle
 import time
+from collections import deque
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import distributed as dist
+from tqdm import tqdm
 
 from ..files import atomic_path, json_text
 from .config import INIT_FILE, STEPS_DIR, TrainConfig, config_from_dict, load_checkpoint, read_run, write_weights
@@ -92,8 +95,6 @@ class Prefetcher:
     ``ahead`` in flight; :meth:`next` returns them in step order."""
 
     def __init__(self, trainer: Trainer, workers: int, start: int, stop: int):
-        import multiprocessing as mp
-        from collections import deque
         global _LOADER
         _LOADER = trainer
         self.trainer = trainer
@@ -307,7 +308,6 @@ class Trainer:
 
     def run(self) -> dict:
         """Train to step :attr:`end` (already past it: no step); returns (and on rank 0 prints) a one-line summary."""
-        from tqdm import tqdm
 
         bar = tqdm(total=self.end, initial=self.step, desc=f"{self.cfg.task} {self.cfg.arch}", unit="step",
                    disable=not self.cfg.progress or self.rank != 0)

@@ -19,15 +19,20 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..networks import ARCHS, IMAGE_DECODERS, IMAGE_ENCODERS, Autoencoder, ImageToShape
 from ..decode import Guide, matched_rows
 from ..files import atomic_path
-from ..networks.decoder import STRUCTURE_LOSSES
-from ..nn.tensors import OctreeTensors
 from ..image.frame import ImageSpec, prepare_image
-from ..image.mask import mask_input, mask_output, MaskSpec
+from ..image.mask import MaskSpec, mask_input, mask_output
+from ..networks import ARCHS, IMAGE_DECODERS, IMAGE_ENCODERS, Autoencoder, ImageToShape
+from ..networks.classifier import CLASSIFIER_ARCHS, Classifier
+from ..networks.decoder import STRUCTURE_LOSSES
+from ..networks.foreground import FOREGROUND_ARCHS, ForegroundModel
+from ..nn.tensors import OctreeTensors
+from ..octree.geometry import ROTATIONS
+from .classify import ClassifySet
+from .completion import CompletionSet
 from .config import TrainConfig, read_run
-from .data import RecordSet
+from .data import RecordSet, manifest_rows
 from .foreground import mask_batch, refine_batch, thin_parts, tubed_skeletons
 from .images import eval_view, image_batch
 
@@ -227,7 +232,6 @@ class CompletionTask(AutoencoderTask):
 
     def dataset(self, cfg, split, seed, points=2048, limit=None, normals: str = "given",
                 symmetry: float | None = None):
-        from .completion import CompletionSet
         return CompletionSet(cfg.data, split, ARCHS[cfg.arch].octree, points=points, depth=cfg.depth,
                              limit=limit, seed=seed, categories=cfg.categories, normals=normals,
                              workers=cfg.workers, stream=cfg.stream, symmetry=symmetry)
@@ -245,30 +249,24 @@ class ClassifyTask(OctreeInputTask):
     name = "classify"
 
     def check(self, cfg: TrainConfig) -> None:
-        from ..networks.classifier import CLASSIFIER_ARCHS
         if cfg.arch not in CLASSIFIER_ARCHS:
             raise ValueError(f"unknown arch {cfg.arch!r}; choose from {', '.join(CLASSIFIER_ARCHS)}")
         if cfg.stream:
             raise ValueError("classification holds its split in memory: stream must be 0")
         if not cfg.categories:         # the classes: every category of the dataset, fixed in the config
-            from .data import manifest_rows
             manifest, _ = manifest_rows(Path(cfg.data), "train", cfg.depth)
             cfg.categories = sorted({r["category"] for r in manifest["records"]})
         if len(cfg.categories) < 2:
             raise ValueError("classification needs at least 2 categories")
 
     def dataset(self, cfg, split, seed, points=2048, limit=None):
-        from ..networks.classifier import CLASSIFIER_ARCHS
-        from .classify import ClassifySet
         return ClassifySet(cfg.data, split, cfg.categories, CLASSIFIER_ARCHS[cfg.arch][0], depth=cfg.depth,
                            limit=limit, up=cfg.up, workers=cfg.workers)
 
     def build_model(self, cfg):
-        from ..networks.classifier import Classifier
         return Classifier(cfg.arch, cfg.depth, len(cfg.categories), latent=cfg.latent, base_channels=cfg.channels)
 
     def inputs(self, cfg, dataset, indices, rng):
-        from ..octree.geometry import ROTATIONS
         rotation = 0 if rng is None else rng.integers(ROTATIONS, size=len(indices))
         octree, labels = dataset.batch(indices, rotation)
         return OctreeTensors.from_octree(octree), torch.from_numpy(labels)
@@ -320,7 +318,6 @@ class ForegroundTask:
     name = "foreground"
 
     def check(self, cfg: TrainConfig) -> None:
-        from ..networks.foreground import FOREGROUND_ARCHS
         if cfg.arch not in FOREGROUND_ARCHS:
             raise ValueError(f"unknown foreground network {cfg.arch!r}; choose from {', '.join(FOREGROUND_ARCHS)}")
         step = FOREGROUND_ARCHS[cfg.arch].divisor
@@ -346,7 +343,6 @@ class ForegroundTask:
                          images=True, categories=cfg.categories, workers=cfg.workers, stream=cfg.stream)
 
     def build_model(self, cfg):
-        from ..networks.foreground import ForegroundModel
         return ForegroundModel(cfg.encoder_width or FOREGROUND_WIDTH, skeleton_weight=cfg.skeleton_weight,
                                arch=cfg.arch)
 
@@ -380,7 +376,6 @@ class RefineTask(ForegroundTask):
         return dataclasses.replace(first, crop_size=cfg.image_size)
 
     def build_model(self, cfg):
-        from ..networks.foreground import ForegroundModel
         return ForegroundModel(cfg.encoder_width or FOREGROUND_WIDTH, skeleton_weight=cfg.skeleton_weight,
                                arch=cfg.arch, in_channels=4)
 

@@ -11,7 +11,7 @@ from pathlib import Path
 from fastapi import APIRouter
 from fastapi.responses import FileResponse
 
-from ..errors import ServiceError, ErrorBody
+from ..errors import ErrorBody, ServiceError
 from ..static import media_type, static_file
 
 DEMO_DIR = Path(__file__).resolve().parents[1] / "demo"

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from export.bundle import Task
 from fastapi import APIRouter, Depends
+
+from export.bundle import Task
 
 from ..deps import engine, require_key
 from ..engine import Engine

@@ -3,18 +3,18 @@ shape -> categories.  Uploads are multipart fields; the work runs in the engine'
 
 from __future__ import annotations
 
-import numpy as np
 from typing import Annotated
 
+import numpy as np
 from fastapi import APIRouter, Depends, File, Header, Query, UploadFile
 from fastapi.responses import Response
 from pydantic import BaseModel, Field, model_validator
 
 from export.bundle import Task
 from model.formats import IMAGE_FORMATS
+from model.image.frame import Framed, upload_box
 from model.octree.build import MAX_BUILD_DEPTH
 from model.octree.symmetry import MIN_SUPPORT, Mirror
-from model.image.frame import Framed, upload_box
 from model.surface import DEFAULT_SURFACE
 
 from ..deps import engine, require_key

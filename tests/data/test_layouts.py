@@ -6,8 +6,16 @@ import numpy as np
 import pytest
 import trimesh
 
-from model.data.layouts import (folder_category, iter_mesh_folder, iter_modelnet40, iter_r2n2, iter_shapenet,
-                                load_mesh, read_off, y_up)
+from model.data.layouts import (
+    folder_category,
+    iter_mesh_folder,
+    iter_modelnet40,
+    iter_r2n2,
+    iter_shapenet,
+    load_mesh,
+    read_off,
+    y_up,
+)
 
 CUBE_OFF_BODY = "\n".join(
     ["-1 -1 -1", "1 -1 -1", "1 1 -1", "-1 1 -1", "-1 -1 1", "1 -1 1", "1 1 1", "-1 1 1",
@@ -86,7 +94,8 @@ def test_y_up_turns_the_named_axis_to_y_by_a_rotation():
         assert np.isclose(turned.volume, src.volume) and turned.is_winding_consistent
         assert turned.volume > 0                                   # a rotation: the faces still face out
     assert y_up(tall, "y") is tall
-    apex = trimesh.Trimesh(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], faces=[[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    apex = trimesh.Trimesh(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]],
+                           faces=[[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     assert np.allclose(y_up(apex, "z").vertices[3], [0, 1, 0])     # +z goes to +y
     assert np.allclose(y_up(apex, "x").vertices[1], [0, 1, 0])     # +x goes to +y
     with pytest.raises(ValueError, match="up must be one of"):

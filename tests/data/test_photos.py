@@ -7,8 +7,17 @@ import numpy as np
 import pytest
 
 from model.data import photos
-from model.data.photos import (TEST_PHOTOS, TRAIN_PHOTOS, PhotoStyle, imperfect_mask, mask_box, object_crop,
-                               photo_composite, photo_split_view, real_photo)
+from model.data.photos import (
+    TEST_PHOTOS,
+    TRAIN_PHOTOS,
+    PhotoStyle,
+    imperfect_mask,
+    mask_box,
+    object_crop,
+    photo_composite,
+    photo_split_view,
+    real_photo,
+)
 
 
 def render(h: int = 120, w: int = 90) -> np.ndarray:

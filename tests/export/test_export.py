@@ -13,14 +13,13 @@ from export.bundle import load_bundle
 from export.fold import fold_batchnorm
 from export.parity import RELATIVE_TOLERANCE, decoder_parity, leaf_planes, relative_error
 from export.runtime import Runtime
-from model.decode import decode
+from model.image.frame import prepare_image
 from model.networks import ARCHS, TorchSteps
 from model.nn.tensors import OctreeTensors
-from model.octree import LEAF, build_octree
+from model.octree import build_octree
 from model.octree.batch import split_octree
 from model.octree.metrics import sample_patches
 from model.octree.patches import patches_to_mesh
-from model.image.frame import prepare_image
 
 from .conftest import octree_batch
 

@@ -8,10 +8,19 @@ import pytest
 from PIL import Image
 
 from model.image.decode import ImageError
-
-from model.image.frame import frame_object, ImageSpec, MIN_OBJECT_SIDE
-
-from model.image.mask import (clean_mask, mask_bounds, mask_input, mask_output, MaskSpec, NoObjectError, object_mask, object_square, resize_mask, to_image)
+from model.image.frame import MIN_OBJECT_SIDE, ImageSpec, frame_object
+from model.image.mask import (
+    MaskSpec,
+    NoObjectError,
+    clean_mask,
+    mask_bounds,
+    mask_input,
+    mask_output,
+    object_mask,
+    object_square,
+    resize_mask,
+    to_image,
+)
 
 SPEC = ImageSpec(size=64)
 

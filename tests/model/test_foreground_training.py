@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from export.parity import RELATIVE_TOLERANCE
-from model.networks.foreground import ForegroundNet, mask_losses
 from model.image.frame import prepare_image
+from model.networks.foreground import ForegroundNet, mask_losses
 from model.train.loop import Trainer
 
 from .test_train import config, trains_and_resumes_identically
@@ -122,8 +122,8 @@ def test_the_light_network_trains_resumes_and_exports_as_the_bundle_runs_it(tiny
     from export.exporter import export
     from export.runtime import Runtime
     from model.checkpoint import load_model
+    from model.image.mask import MaskSpec, mask_input, mask_output
     from model.networks.foreground import LiteForegroundNet
-    from model.image.mask import mask_input, mask_output, MaskSpec
 
     lite = {**FG, "arch": "unet-lite"}
     straight, summary = trains_and_resumes_identically(tiny_data, tmp_path, **lite)
@@ -185,8 +185,8 @@ def test_a_network_trained_on_second_looks_looks_again_at_small_squares(tiny_dat
 def test_a_run_started_from_another_runs_weights(tiny_data, runs, tmp_path, capsys):
     """--init: a new run starts from another's weights (the same task and network), records where
     they came from, and research.release carries that into model.json; a run that does not fit is refused."""
-    from research.release import RECIPES, package
     from model.train.__main__ import main
+    from research.release import RECIPES, package
 
     Trainer(config(tiny_data, tmp_path / "a", iters=2, **FG)).run()
     source = torch.load(tmp_path / "a" / "checkpoint.pt", weights_only=False)["model"]
@@ -266,8 +266,8 @@ def test_the_bundle_carries_the_foreground_network_and_the_photo_evaluation_uses
     from export.bundle import BundleError, load_bundle
     from export.exporter import export
     from export.runtime import Runtime
-    from research.evaluate import evaluate
     from model.checkpoint import load_model
+    from research.evaluate import evaluate
 
     bundle, meta = float32_bundle
     assert "foreground" in meta["graphs"] and meta["input"]["foreground"]["size"] == 32
@@ -278,7 +278,7 @@ def test_the_bundle_carries_the_foreground_network_and_the_photo_evaluation_uses
     rgb = np.random.default_rng(0).integers(0, 256, (40, 70, 3), dtype=np.uint8)
     p = rt.segment(rgb)
     assert p.shape == (32, 32) and 0 <= p.min() and p.max() <= 1           # the network's grid
-    from model.image.mask import mask_input, mask_output, MaskSpec
+    from model.image.mask import MaskSpec, mask_input, mask_output
     with torch.no_grad():
         logits = load_model(runs / "fg").model.net(torch.from_numpy(mask_input(rgb, MaskSpec(size=32))[None]))
     assert np.abs(mask_output(logits.numpy()[0, 0]) - p).max() < 1e-4
@@ -479,7 +479,7 @@ def test_the_refinement_trains_on_the_first_networks_mask_of_the_objects_square(
 
 
 def test_a_refined_mask_replaces_the_first_in_the_objects_square():
-    from model.image.mask import crop_input, MaskSpec, refined_mask
+    from model.image.mask import MaskSpec, crop_input, refined_mask
 
     spec = MaskSpec(size=32, crop_size=64, crop_margin=0.1)
     rgb = np.zeros((120, 200, 3), np.uint8)

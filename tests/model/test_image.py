@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from model.image.decode import decode_image, ImageError
-
+from model.image.decode import ImageError, decode_image
 from model.image.frame import ImageSpec, load_and_prepare, object_box, prepare_image
 
 SPEC = ImageSpec(size=32)

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from model.files import sha256_file
 from model.checkpoint import load_model
+from model.files import sha256_file
 
 CHECKPOINTS = Path(__file__).resolve().parents[2] / "models" / "checkpoints"
 BUNDLES = CHECKPOINTS.parent / "bundles"
@@ -35,9 +35,9 @@ def test_shipped_checkpoint_matches_its_json_and_works(name):
 def _decodes_a_photo(loaded, meta):
     """A white square on a grey photo: a finite latent and a non-empty octree."""
     from model.decode import decode
+    from model.image.frame import prepare_image
     from model.networks import TorchSteps
     from model.octree.batch import split_octree
-    from model.image.frame import prepare_image
 
     model, cfg = loaded.model, loaded.config
     x = torch.from_numpy(prepare_image(_photo(), cfg.image_spec())[None])
@@ -103,9 +103,9 @@ def _photo_of_an_unseen_chair(seed: int = 0):
 
 def _finds_the_object_in_a_photo(loaded, meta):
     """An unseen chair on held-out photographs: the mask finds it (IoU with the exact mask)."""
-    from research.evaluate import torch_segment
     from model.image.mask import object_mask
     from model.train.tasks import TASKS
+    from research.evaluate import torch_segment
 
     spec = TASKS["foreground"].spec(loaded.config)
     segment = torch_segment(loaded.model, spec)

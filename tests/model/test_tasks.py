@@ -95,7 +95,8 @@ def test_completion_training_resumes_and_evaluates_against_the_input_floor(scan_
 
     # the keep_scan bias: chosen on a split, recorded with the run, used by evaluation (carried by
     # export: the guided test below, which exports anyway)
-    from research.calibrate import keep_scan_candidates, main as calibrate_main
+    from research.calibrate import keep_scan_candidates
+    from research.calibrate import main as calibrate_main
 
     assert calibrate_main([str(tmp_path / "a"), "--data", str(scan_data), "--split", "train", "--keep-scan",
                            "--limit", "2", "--resolution", "32"]) == 0
@@ -262,8 +263,8 @@ def test_a_streamed_record_set_gives_the_same_samples_image_batches_and_training
 
 
 def test_classify_trains_on_rotations_resumes_and_votes(tiny_data, tmp_path, capsys):
-    from research.evaluate import main as evaluate_main
     from model.train.classify import ROTATIONS
+    from research.evaluate import main as evaluate_main
 
     straight, summary = trains_and_resumes_identically(tiny_data, tmp_path, task="classify")
     assert straight.cfg.categories == ["airplane", "chair", "table"]      # the dataset's, fixed in the config
@@ -350,10 +351,10 @@ def test_guided_completion_reads_the_scans_features_trains_resumes_and_exports(s
     encoder's features; training resumes identically; calibration, evaluation and export follow."""
     from export.bundle import load_bundle
     from export.exporter import export
-    from research.calibrate import main as calibrate_main
     from model.decode import matched_rows
-    from research.evaluate import main as evaluate_main
     from model.nn.tensors import OctreeTensors
+    from research.calibrate import main as calibrate_main
+    from research.evaluate import main as evaluate_main
 
     straight, summary = trains_and_resumes_identically(scan_data, tmp_path, task="completion",
                                                        structure_loss="balanced", skips=True)

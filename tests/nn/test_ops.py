@@ -9,8 +9,19 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from model.nn import (ConvBnRelu, DeconvBnRelu, LevelTensors, OctreeBatchNorm, OctreeConv, OctreeDeconv,
-                      OctreeTensors, octree_conv, octree_deconv, octree_max_pool, octree_upsample)
+from model.nn import (
+    ConvBnRelu,
+    DeconvBnRelu,
+    LevelTensors,
+    OctreeBatchNorm,
+    OctreeConv,
+    OctreeDeconv,
+    OctreeTensors,
+    octree_conv,
+    octree_deconv,
+    octree_max_pool,
+    octree_upsample,
+)
 from model.octree import EMPTY, SPLIT, build_octree, keys
 from model.octree.batch import merge_octrees
 

@@ -8,8 +8,17 @@ import trimesh
 from model.data.shapes import generate
 from model.octree import PointCloud, validate
 from model.octree.metrics import mean_squared_distance, missing_part
-from model.octree.symmetry import (MIN_SUPPORT, SHEET, TOLERANCE, Mirror, _coarse_supports, find_mirror, is_sheet,
-                                   mirror_cloud, symmetrize)
+from model.octree.symmetry import (
+    MIN_SUPPORT,
+    SHEET,
+    TOLERANCE,
+    Mirror,
+    _coarse_supports,
+    find_mirror,
+    is_sheet,
+    mirror_cloud,
+    symmetrize,
+)
 
 from .conftest import mesh_points
 

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from research.align import icp, rigid_fit
 from model.data.shapes import generate
 from model.octree.metrics import chamfer_distance
+from research.align import icp, rigid_fit
 
 
 def test_rigid_fit_is_exact_and_never_a_reflection():

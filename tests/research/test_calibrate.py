@@ -5,11 +5,11 @@ import json
 import numpy as np
 import torch
 
-from research.calibrate import calibrate, matching_bias, split_logits
 from model.checkpoint import load_model
 from model.octree import SPLIT
 from model.train.loop import TrainConfig, Trainer
 from model.train.tasks import TASKS
+from research.calibrate import calibrate, matching_bias, split_logits
 
 
 def test_matching_bias_equalises_counts():

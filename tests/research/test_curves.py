@@ -82,8 +82,8 @@ def test_chamfer_measures_each_kept_step_once_and_names_the_lowest(tiny_data, tm
     """--chamfer: every validated step's weights measured on the validation split's first shapes of
     each category, as research.evaluate measures them; kept beside the weights and reused while the
     settings are the same; a panel of its own; the step with the lowest figure named."""
-    from research.evaluate import evaluate
     from model.train.loop import TrainConfig, Trainer
+    from research.evaluate import evaluate
 
     run = tmp_path / "run"
     Trainer(TrainConfig(data=str(tiny_data), depth=5, arch="aocnn", out=str(run), iters=16, batch_size=4,

@@ -41,8 +41,8 @@ def foreground_models_dir(exported, tmp_path_factory):
     from export.bundle import GraphSpec
     from export.graphs import foreground_graph
     from model.files import sha256_file
-    from model.networks.foreground import ForegroundNet
     from model.image.mask import MaskSpec
+    from model.networks.foreground import ForegroundNet
 
     root = tmp_path_factory.mktemp("foreground-models")
     folder = root / "image-to-shape"

@@ -20,14 +20,14 @@ import pytest
 from PIL import Image
 
 from service.engine import Engine, StartupError
-from service.limiter import Limiter, plan_threads
 from service.errors import ServiceError
+from service.limiter import Limiter, plan_threads
 from service.metrics import Metrics
 from service.settings import Settings
 
 from ..torchless import run_without_torch
 from .conftest import make_client
-from .test_api import _npy, png, photo
+from .test_api import _npy, photo, png
 
 ROOT = Path(__file__).resolve().parents[2]
 

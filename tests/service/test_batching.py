@@ -11,8 +11,8 @@ import pytest
 import trimesh
 
 from service.batching import Batcher
-from service.limiter import Limiter
 from service.errors import ServiceError
+from service.limiter import Limiter
 from service.metrics import Metrics
 
 from .conftest import make_client

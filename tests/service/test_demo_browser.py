@@ -12,6 +12,7 @@ from pathlib import Path
 
 from .conftest import KEY
 
+
 def run_example(page, name: str, timeout_ms: int = 120_000) -> dict:
     """Choose a bundled example, press Run and wait for the viewer (or an error)."""
     before = page.evaluate("() => [window.aocnnDemo.loads, window.aocnnDemo.errors]")
