@@ -128,7 +128,7 @@ def export_graphs(src: Loaded) -> list[G.Graph]:
 
 FOREGROUND_PRECISIONS = ("int8", "float32")
 """How the export stores the foreground network: statically quantised (the default: 2.1x faster
-in onnxruntime, the same mask IoU, docs/RESULTS.md) or as trained."""
+in onnxruntime, the same mask IoU, docs/journal/2026-11-experiments.md) or as trained."""
 FOREGROUND_INT8 = "u8 activations, s8 per-channel weights in 7 bits (reduce_range)"
 """The int8 form: 7-bit weights keep every pair of u8 x s8 products within the 16 bits that
 onnxruntime's kernels without VNNI add them in, so AVX2 and AVX-512 VNNI machines give the same

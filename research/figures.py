@@ -1,4 +1,4 @@
-"""Pictures of real outputs for docs/RESULTS.md, drawn with the project's own renderer.
+"""Pictures of real outputs for docs/journal/2026-11-experiments.md, drawn with the project's own renderer.
 
     python -m research.figures --data DIR --runs NAME=RUN [NAME=RUN ...] --out PNG [--split test]
                             [--shapes 6] [--categories car chair ...] [--keep-scan]

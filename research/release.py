@@ -59,7 +59,7 @@ RECIPES: dict[str, Recipe] = {
         build=["--per-category", "100", "--depth", "6", "--seed", "0"],
         # The image encoder is regressed onto the latent codes of an Adaptive O-CNN autoencoder and
         # uses its decoder: at 4,000 steps this gives 8.7 (4.1 after ICP) against 16.0 (9.8) for the
-        # same network trained end to end (docs/RESULTS.md).
+        # same network trained end to end (docs/journal/2026-11-experiments.md).
         teacher=["autoencoder", "--depth", "6", "--arch", "aocnn", "--iters", "4000", "--batch-size", "8",
                  "--val-every", "500", "--ckpt-every", "250", "--seed", "0", "--structure-loss", "balanced",
                  "--pred-hidden", "32"],
@@ -68,7 +68,7 @@ RECIPES: dict[str, Recipe] = {
                "--structure-loss", "balanced", "--pred-hidden", "32"],
         # Then retrained for photographs: half the samples are photo-like composites cut out again
         # with imperfect masks (the service's background removal), regressed onto the calibrated
-        # model's codes of the clean renders, framed at the foreground ratio 0.85 (docs/RESULTS.md).
+        # model's codes of the clean renders, framed at the foreground ratio 0.85 (docs/journal/2026-11-experiments.md).
         refine=["image", "--depth", "6", "--encoder", "resnet18", "--decoder", "aocnn", "--iters", "4000",
                 "--batch-size", "8", "--val-every", "500", "--ckpt-every", "100", "--seed", "0",
                 "--structure-loss", "balanced", "--pred-hidden", "32", "--photo-share", "0.5",
@@ -82,7 +82,7 @@ RECIPES: dict[str, Recipe] = {
         # Width 16 (1.23 M parameters).  The shipped network was trained by hand with this schedule:
         # its first 3,250 steps on a GPU with the depth-7 set of ten times the shapes
         # (scripts/gpu-train), the rest resumed on the CPU with this dataset, then packaged with
-        # --run (docs/RESULTS.md); this recipe alone trains the same network on this dataset.
+        # --run (docs/journal/2026-11-experiments.md); this recipe alone trains the same network on this dataset.
         train=["foreground", "--depth", "6", "--width", "16", "--iters", "15000", "--batch-size", "16",
                "--val-every", "1000", "--ckpt-every", "250", "--seed", "0"],
         evaluate=["--split", "test"], calibrate=False),
@@ -90,10 +90,10 @@ RECIPES: dict[str, Recipe] = {
         task="completion",
         build=["--per-category", "100", "--depth", "6", "--seed", "0"],
         # Trained end to end in the partial scan's frame: a teacher autoencoder's codes live in the
-        # complete shape's own frame, which a partial scan does not reveal (docs/RESULTS.md).  With
+        # complete shape's own frame, which a partial scan does not reveal (docs/journal/2026-11-experiments.md).  With
         # output-guided skip connections: validation Chamfer x1e3 0.280 against 1.332 without them
         # (0.373 as served with the scan kept), at the same 4,000 steps; 8,000 steps (shipped, packaged
-        # from a run of exactly these settings with --run): 0.251 alone, 0.207 served (docs/RESULTS.md).
+        # from a run of exactly these settings with --run): 0.251 alone, 0.207 served (docs/journal/2026-11-experiments.md).
         train=["completion", "--depth", "6", "--arch", "aocnn", "--iters", "8000", "--batch-size", "8",
                "--val-every", "1000", "--ckpt-every", "250", "--seed", "0", "--structure-loss", "balanced",
                "--pred-hidden", "32", "--workers", "2", "--skips"],

@@ -125,3 +125,16 @@ def test_the_octree_python_example_runs(scratch):
                          text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-2000:]
     assert (scratch / "patches.ply").stat().st_size > 1000
+
+
+def test_the_layout_section_names_the_tree_as_it_is():
+    """Every path of the README's layout table exists, and every top-level folder and every
+    package of ``model/`` has a row (the table is the tree, not a memory of it)."""
+    section = README.split("## Layout", 1)[1].split("\n## ", 1)[0]
+    named = set(re.findall(r"^\| (.+?) \|", section, re.M)) - {"path", "---"}
+    paths = {p.strip("`").rstrip("/") for cell in named for p in re.findall(r"`([^`]+)`", cell)}
+    assert paths and all((ROOT / p).exists() for p in paths), sorted(p for p in paths if not (ROOT / p).exists())
+    tracked = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True).stdout.split()
+    folders = {f.split("/")[0] for f in tracked if "/" in f and not f.startswith(".")}
+    packages = {str(p.parent.relative_to(ROOT)) for p in (ROOT / "model").glob("*/__init__.py")}
+    assert folders | packages <= paths, sorted((folders | packages) - paths)

@@ -32,7 +32,7 @@ class MaskSpec:
     again (None: ``size``).  A network trained without second looks' views keeps the default: a
     smaller square, enlarged to ``size``, is blurred as none of its training photos is, and its
     second mask was worse than the first (validation IoU 0.814 against 0.836 without those second
-    looks, docs/RESULTS.md).  ``guide``: the radius, in the network's pixels, of the guided filter
+    looks, docs/journal/2026-11-experiments.md).  ``guide``: the radius, in the network's pixels, of the guided filter
     that brings each look's mask from the network's grid to the image's resolution
     (:func:`guided_filter`, with the regulariser ``guide_eps``; 0: none, the mask is resized;
     on the 128² grid the radius is rounded to whole pixels), which brings back the edges and thin

@@ -133,7 +133,7 @@ points says nothing of the shape, and the service answers 400 rather than a gues
 
 SCAN_FRAME_MARGIN = 1.1
 """A partial scan's frame is its bounding cube enlarged by this factor: in 99.8% of the dataset's
-partial scans the complete shape lies inside it (docs/RESULTS.md, shape completion)."""
+partial scans the complete shape lies inside it (docs/journal/2026-11-experiments.md, shape completion)."""
 
 
 def scan_frame(points: np.ndarray, margin: float = SCAN_FRAME_MARGIN) -> Normalization:

@@ -7,7 +7,7 @@ that plane is ``x = c`` for an unknown ``c``. :func:`find_mirror` finds ``c`` as
 which the most of the scan lands on itself, and reports that share (its support); a scan
 supported well enough is completed from itself and its mirror image (:func:`symmetrize`), so a
 side the scanner never saw starts from the geometry of the side it did. The support threshold
-was chosen on the validation split (docs/RESULTS.md); an asymmetric object (a one-armed sofa, a
+was chosen on the validation split (docs/journal/2026-11-experiments.md); an asymmetric object (a one-armed sofa, a
 lamp with its arm to one side) scores lower and is left as scanned.  So is a sheet (a relief, a
 sign: the scan within :data:`SHEET` tolerances of one plane): its mirror image lands on it in depth
 whatever its outline, so its support tests two dimensions of three, and the models, trained on
@@ -35,7 +35,7 @@ SHEET = 1.5
 """A scan is a sheet when 95% of its points lie within this many tolerances of their best-fit plane.
 A flat surface scanned with the training scans' noise (0.5% of the size) lies within about one
 tolerance; of the generated shapes' scans 1 of 772 validation scans and 2 of 1,560 held-out ones
-are sheets by this rule (docs/RESULTS.md)."""
+are sheets by this rule (docs/journal/2026-11-experiments.md)."""
 
 SHORTLIST = 8
 """How many of the candidate planes with the highest approximate support (:func:`_coarse_supports`)

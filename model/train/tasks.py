@@ -406,7 +406,7 @@ def _first_stage(path: str) -> tuple[nn.Module, MaskSpec]:
 TRAINED_REFINE_MIN = 32
 """The smallest square a network trained on second looks' views looks at again: every small object
 of the photo-like views (a network fine-tuned so scored 0.857 on validation with every second look,
-0.858 with squares of 96 px or more, 0.855 with the untrained network's 128: docs/RESULTS.md)."""
+0.858 with squares of 96 px or more, 0.855 with the untrained network's 128: docs/journal/2026-11-experiments.md)."""
 
 FOREGROUND_WIDTH = 8
 """The foreground U-Net's default width (its first stage's channels)."""
