@@ -172,7 +172,7 @@ def accuracy(depths: list[int], mesh_dir: str) -> int:
     from model.octree.metrics import Reference
     from model.surface import surface_mesh
     from model.surface.checks import is_closed
-    from research.evaluate import fscore_threshold
+    from research.measures import fscore_threshold
 
     print("| mesh | depth | thin share | patches CD | closed CD | ratio | MC CD | MC ratio "
           "| F: patches / closed / MC | normals: patches / closed / MC | closed: ours / MC |")

@@ -44,7 +44,9 @@ from model.train.completion import truth_view
 from model.train.config import KEEP_SCAN_FILE, MASK_GUIDE_FILE, load_checkpoint, write_weights
 from model.train.tasks import TASKS, encode_with_guide
 
-from .evaluate import MISSING_GAP, decoded_points, mask_ious, split_subset, torch_segment
+from .decoding import decoded_points
+from .masks import mask_ious, torch_segment
+from .measures import MISSING_GAP, split_subset
 from .results import category_means
 from .results_table import paired_difference
 
@@ -154,7 +156,7 @@ def calibrate_keep_scan(run: str, data: str, split: str = "val", batch_size: int
     choice: among the settings whose fused outputs' Chamfer distance (category mean) is not
     significantly above the lowest's (its paired 95% bootstrap interval over the shapes,
     ``draws`` draws, reaches 0), the one closest to the missing part (the completion's own
-    measure, :data:`research.evaluate.MISSING_GAP`).  ``limit``: the first shapes of the
+    measure, :data:`research.measures.MISSING_GAP`).  ``limit``: the first shapes of the
     split only; ``per_category``: of those, the first so many of each category (a subset every
     category is in: each candidate decodes every shape, which at depth 7 costs hours on the whole
     split); ``resolution``: the patch sampling grid."""

@@ -29,7 +29,7 @@ from model.cli import command_parser
 from model.files import atomic_path, json_text, sha256_file, write_atomic
 from model.train.config import STEPS_DIR, read_run
 
-from .evaluate import evaluate
+from .evaluate import EvalOptions, evaluate
 
 NOT_TERMS = {"step", "split", "lr", "seconds"}
 
@@ -118,8 +118,9 @@ def validation_chamfer(run: str | Path, data: str | Path, per_category: int = 4,
             if kept.get("settings") == settings and kept.get("weights_sha256") == weights:
                 out[int(kept["step"])] = np.nan if kept[CHAMFER_TERM] is None else float(kept[CHAMFER_TERM])
                 continue
-        results = evaluate(str(folder), str(data), "val", resolution, per_category=per_category,
-                           photos=foreground is not None, foreground=None if foreground is None else str(foreground))
+        options = EvalOptions("val", resolution, per_category=per_category, photos=foreground is not None,
+                              foreground=None if foreground is None else str(foreground))
+        results = evaluate(str(folder), str(data), options)
         step = int(meta["steps"])
         value = results["chamfer_x1e3_category_mean"]        # None: every output was empty
         write_atomic(cached, json_text({"step": step, CHAMFER_TERM: value, "shapes": results["shapes"],

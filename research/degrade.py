@@ -33,7 +33,8 @@ from model.octree.batch import merge_octrees
 from model.octree.metrics import chamfer_distance, mean_squared_distance, missing_part
 from model.octree.pointcloud import MIN_SCAN_POINTS, normalization_of
 
-from .evaluate import MISSING_GAP, decoded_points
+from .decoding import decoded_points
+from .measures import MISSING_GAP
 from .results_table import paired_difference
 
 MIN_POINTS = MIN_SCAN_POINTS

@@ -31,7 +31,7 @@ from model.octree.patches import DEPTH_COLORS, patches_to_mesh
 from model.train.images import eval_view
 from model.train.tasks import TASKS, encode_with_guide
 
-from .evaluate import ATLAS_GRID, decoded_points
+from .decoding import ATLAS_GRID, decoded_points
 
 TILE = 160
 VIEW = dict(azimuth_deg=35.0, elevation_deg=25.0, distance=2.6)
@@ -65,7 +65,7 @@ def output_mesh(model, latent: torch.Tensor, resolution: int = 64, guide: Guide 
                 scans: list | None = None, empty_bias: dict[int, float] | None = None
                 ) -> list[tuple[trimesh.Trimesh, trimesh.Trimesh | None]]:
     """Per shape: the decoded surface as a mesh, and for octree decoders the depth-coloured patches
-    (``guide``, ``scans`` and ``empty_bias`` as :func:`research.evaluate.decoded_points`')."""
+    (``guide``, ``scans`` and ``empty_bias`` as :func:`research.decoding.decoded_points`')."""
     dec = model.decoder
     if isinstance(dec, AtlasNetDecoder):
         with torch.no_grad():

@@ -112,7 +112,7 @@ def test_generated_photos_show_training_shapes_of_every_category_on_training_sce
     from model.data.shapes import generate as real_generate
 
     shapes, used = [], []
-    monkeypatch.setattr("model.data.shapes.generate",
+    monkeypatch.setattr(photos, "generate",
                         lambda c, i, seed=0: shapes.append((c, i, seed)) or real_generate(c, i, seed))
     monkeypatch.setattr(photos, "real_photo", lambda name: used.append(name) or np.zeros((300, 400, 3), np.uint8))
     got = photos.generated_photos(per_category=1, views=2, seed=3)

@@ -267,7 +267,7 @@ def test_the_bundle_carries_the_foreground_network_and_the_photo_evaluation_uses
     from export.exporter import export
     from export.runtime import Runtime
     from model.checkpoint import load_model
-    from research.evaluate import evaluate
+    from research.evaluate import EvalOptions, evaluate
 
     bundle, meta = float32_bundle
     assert "foreground" in meta["graphs"] and meta["input"]["foreground"]["size"] == 32
@@ -287,25 +287,25 @@ def test_the_bundle_carries_the_foreground_network_and_the_photo_evaluation_uses
     with pytest.raises(BundleError, match="precision"):
         export(runs / "img", tmp_path / "c", foreground=runs / "fg", foreground_precision="int4")
     assert not (tmp_path / "c").exists()
-    res = evaluate(str(runs / "img"), str(tiny_data), "train", resolution=16, limit=3, bundle=str(bundle),
-                   photos=True)
+    res = evaluate(str(runs / "img"), str(tiny_data),
+                   EvalOptions("train", resolution=16, limit=3, bundle=str(bundle), photos=True))
     assert res["input"]["foreground_network"] and sum(res["input"]["mask_sources"].values()) == 3
     for r in res["per_shape"]:
         assert r["mask_source"] in ("network", "missed")
         assert 0 <= r["mask_iou"] <= 1 and len(r["photo_size"]) == 2
-    plain = evaluate(str(runs / "img"), str(tiny_data), "train", resolution=16, limit=3, photos=True)
+    plain = evaluate(str(runs / "img"), str(tiny_data), EvalOptions("train", resolution=16, limit=3, photos=True))
     assert plain["input"] == {"kind": "photos", "remove_background": "auto", "foreground_network": False,
                               "foreground": None, "exact_masks": False, "mask_sources": {"none": 3}}
     json.dumps(res)
     # the diagnostic: each photo sent with its exact mask as alpha, what a perfect foreground network gives
-    exact = evaluate(str(runs / "img"), str(tiny_data), "train", resolution=16, limit=3, bundle=str(bundle),
-                     photos=True, exact_masks=True)
+    exact = evaluate(str(runs / "img"), str(tiny_data),
+                     EvalOptions("train", resolution=16, limit=3, bundle=str(bundle), photos=True, exact_masks=True))
     assert exact["input"]["mask_sources"] == {"alpha": 3} and not exact["input"]["foreground_network"]
     assert all(r["mask_iou"] > 0.99 for r in exact["per_shape"])
     assert exact["mask_iou_category_mean"] >= res["mask_iou_category_mean"]
     for bad in (dict(photos=False), dict(photos=True, foreground=str(runs / "fg"))):
         with pytest.raises(ValueError, match="--exact-masks"):
-            evaluate(str(runs / "img"), str(tiny_data), "train", resolution=16, limit=3, exact_masks=True, **bad)
+            evaluate(str(runs / "img"), str(tiny_data), EvalOptions("train", resolution=16, limit=3, exact_masks=True, **bad))
 
 
 def test_the_default_bundle_stores_the_foreground_network_in_int8_and_it_masks_as_torch_does(runs, float32_bundle,
@@ -368,7 +368,7 @@ def test_the_guided_filter_is_calibrated_on_validation_recorded_and_exported(tin
     from export.bundle import load_bundle
     from export.exporter import export
     from research.calibrate import MASK_GUIDE_EPS, MASK_GUIDE_RADII, main
-    from research.evaluate import evaluate
+    from research.evaluate import EvalOptions, evaluate
 
     run = tmp_path / "fg"
     shutil.copytree(runs / "fg", run)
@@ -380,7 +380,7 @@ def test_the_guided_filter_is_calibrated_on_validation_recorded_and_exported(tin
     assert report["mask_iou_category_mean"] == max(scores) and report["photos"] == 3
     best = report["candidates"][int(np.argmax(scores))]
     assert (report["radius"], report["eps"]) == (best["radius"], best["eps"])
-    res = evaluate(str(run), str(tiny_data), "train", limit=3)
+    res = evaluate(str(run), str(tiny_data), EvalOptions("train", limit=3))
     assert res["mask_spec"]["guide"] == report["radius"] and res["mask_spec"]["guide_eps"] == report["eps"]
     assert res["mask_iou_category_mean"] == pytest.approx(report["mask_iou_category_mean"], abs=1e-4)
     meta = export(runs / "img", tmp_path / "b", foreground=run, foreground_precision="float32")
@@ -393,12 +393,12 @@ def test_the_guided_filter_is_calibrated_on_validation_recorded_and_exported(tin
 
 def test_photos_without_a_bundle_take_the_foreground_network_in_torch_as_its_bundle_would(tiny_data, runs,
                                                                                          float32_bundle):
-    from research.evaluate import evaluate
+    from research.evaluate import EvalOptions, evaluate
 
     bundle, _ = float32_bundle
     kw = dict(resolution=16, limit=3, photos=True)
-    served = evaluate(str(runs / "img"), str(tiny_data), "train", bundle=str(bundle), **kw)
-    torch_fg = evaluate(str(runs / "img"), str(tiny_data), "train", foreground=str(runs / "fg"), **kw)
+    served = evaluate(str(runs / "img"), str(tiny_data), EvalOptions("train", bundle=str(bundle), **kw))
+    torch_fg = evaluate(str(runs / "img"), str(tiny_data), EvalOptions("train", foreground=str(runs / "fg"), **kw))
     assert torch_fg["input"]["foreground_network"] and torch_fg["input"]["foreground"] == str(runs / "fg")
     assert torch_fg["input"]["mask_sources"] == served["input"]["mask_sources"]
     for a, b in zip(torch_fg["per_shape"], served["per_shape"]):
@@ -407,15 +407,15 @@ def test_photos_without_a_bundle_take_the_foreground_network_in_torch_as_its_bun
     for bad, needle in ((dict(kw, photos=False), "goes with --photos"),
                         (dict(kw, bundle=str(bundle)), "no --bundle")):
         with pytest.raises(ValueError, match=needle):
-            evaluate(str(runs / "img"), str(tiny_data), "train", foreground=str(runs / "fg"), **bad)
+            evaluate(str(runs / "img"), str(tiny_data), EvalOptions("train", foreground=str(runs / "fg"), **bad))
     with pytest.raises(ValueError, match="not a foreground network"):
-        evaluate(str(runs / "img"), str(tiny_data), "train", foreground=str(runs / "img"), **kw)
+        evaluate(str(runs / "img"), str(tiny_data), EvalOptions("train", foreground=str(runs / "img"), **kw))
 
 
 def test_a_model_retrained_for_photos_is_chosen_on_the_validation_photos(tiny_data, runs, tmp_path, capsys):
     from research.choose import main
     from research.curves import foreground_fingerprint
-    from research.evaluate import evaluate
+    from research.evaluate import EvalOptions, evaluate
 
     run, out = tmp_path / "s", tmp_path / "best"
     Trainer(config(tiny_data, tmp_path / "fg2", iters=2, **FG)).run()
@@ -431,8 +431,8 @@ def test_a_model_retrained_for_photos_is_chosen_on_the_validation_photos(tiny_da
         folder = run / "steps" / f"{step:06d}"
         assert not (folder / "chamfer.json").exists()              # the clean figures are another file
         kept[step] = json.loads((folder / "chamfer-photos.json").read_text())["chamfer_x1e3"]
-        again = evaluate(str(folder), str(tiny_data), "val", resolution=16, per_category=1, photos=True,
-                         foreground=str(runs / "fg"))
+        again = evaluate(str(folder), str(tiny_data),
+                         EvalOptions("val", resolution=16, per_category=1, photos=True, foreground=str(runs / "fg")))
         assert again["chamfer_x1e3_category_mean"] == pytest.approx(kept[step])
     meta = json.loads((out / "model.json").read_text())
     assert meta["steps"] == min(kept, key=lambda s: (kept[s], s))

@@ -105,7 +105,7 @@ def _finds_the_object_in_a_photo(loaded, meta):
     """An unseen chair on held-out photographs: the mask finds it (IoU with the exact mask)."""
     from model.image.mask import object_mask
     from model.train.tasks import TASKS
-    from research.evaluate import torch_segment
+    from research.masks import torch_segment
 
     spec = TASKS["foreground"].spec(loaded.config)
     segment = torch_segment(loaded.model, spec)

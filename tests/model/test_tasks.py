@@ -143,12 +143,12 @@ def test_the_missing_part_is_the_same_part_of_a_shape_for_models_of_every_depth(
     0.5/32 beyond are seen, whatever the depth: a depth-7 model is measured on the shipped one's part."""
     from types import SimpleNamespace
 
-    from research.evaluate import MISSING_GAP, _missing
+    from research.measures import MISSING_GAP, missing_rows
 
     assert MISSING_GAP == 2 / 64
     scan = np.stack([np.linspace(-1, 1, 401), np.zeros(401), np.zeros(401)], 1)
     truth = np.concatenate([scan, scan + [0, 0.5 / 32, 0], scan + [0, 1.5 / 32, 0]])
-    rows = _missing(SimpleNamespace(points=truth, partial=scan), scan)
+    rows = missing_rows(SimpleNamespace(points=truth, partial=scan), scan)
     assert rows["input_missing_x1e3"] == pytest.approx((1.5 / 32) ** 2 * 1e3, rel=1e-3)   # only the far line
     assert rows["missing_x1e3"] == rows["input_missing_x1e3"]
 

@@ -83,7 +83,7 @@ def test_chamfer_measures_each_kept_step_once_and_names_the_lowest(tiny_data, tm
     each category, as research.evaluate measures them; kept beside the weights and reused while the
     settings are the same; a panel of its own; the step with the lowest figure named."""
     from model.train.loop import TrainConfig, Trainer
-    from research.evaluate import evaluate
+    from research.evaluate import EvalOptions, evaluate
 
     run = tmp_path / "run"
     Trainer(TrainConfig(data=str(tiny_data), depth=5, arch="aocnn", out=str(run), iters=16, batch_size=4,
@@ -97,7 +97,7 @@ def test_chamfer_measures_each_kept_step_once_and_names_the_lowest(tiny_data, tm
     records = json.loads((tiny_data / "manifest.json").read_text())["records"]
     categories = len({r["category"] for r in records if r["split"] == "val"})
     for name, figure in kept.items():
-        direct = evaluate(str(run / "steps" / name), str(tiny_data), "val", 16, per_category=1)
+        direct = evaluate(str(run / "steps" / name), str(tiny_data), EvalOptions("val", 16, per_category=1))
         assert figure["chamfer_x1e3"] == pytest.approx(direct["chamfer_x1e3_category_mean"])
         assert figure["shapes"] == direct["shapes"] == categories and figure["step"] == int(name)
         assert figure["chamfer_x1e3"] is not None and figure["empty_outputs"] == 0
@@ -107,7 +107,7 @@ def test_chamfer_measures_each_kept_step_once_and_names_the_lowest(tiny_data, tm
     ratio = Image.open(tmp_path / "c.png").width / Image.open(tmp_path / "loss.png").width
     assert ratio == pytest.approx((panels + 1) / panels, rel=0.05)                # one more panel: the Chamfer's
     calls = []
-    monkeypatch.setattr("research.evaluate.evaluate", lambda *a, **k: calls.append(a) or evaluate(*a, **k))
+    monkeypatch.setattr("research.curves.evaluate", lambda *a, **k: calls.append(a) or evaluate(*a, **k))
     assert main([*args, "--out", str(tmp_path / "again.png")]) == 0 and calls == []   # reused, not measured again
     assert main([*args[:-1], "32", "--out", str(tmp_path / "finer.png")]) == 0      # new settings: measured again
     assert len(calls) == 2

@@ -8,7 +8,7 @@ from ..model.test_train import config
 
 
 def test_evaluate_per_category_takes_the_first_shapes_of_each_category(tiny_data, tmp_path):
-    from research.evaluate import first_of_each
+    from research.measures import first_of_each
     from research.evaluate import main as evaluate_main
 
     assert first_of_each(["a", "a", "b", "a", "c", "b", "b"], 2).tolist() == [0, 1, 2, 4, 5]

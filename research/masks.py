@@ -1,0 +1,80 @@
+"""Foreground masks for evaluation: a foreground network in torch as the service runs its graph,
+the mask IoU of photos through the service's path, and the foreground network's own evaluation."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+
+from model.checkpoint import load_model
+from model.data.photos import photo_split_view
+from model.image.mask import NoObjectError, mask_input, mask_iou, mask_output, object_mask
+from model.train.config import TrainConfig
+from model.train.tasks import TASKS
+
+from .results import category_means
+
+
+def torch_segment(model, spec):
+    """The foreground network of a loaded model in torch, as :meth:`export.runtime.Runtime.segment`
+    runs its graph: an (H, W, 3) uint8 image to its object probability on the network's grid."""
+
+    def segment(rgb: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            logits = model.net(torch.from_numpy(mask_input(rgb, spec)[None])).numpy()
+        return mask_output(logits[0, 0])
+    return segment
+
+
+def foreground_in_torch(checkpoint: str) -> tuple:
+    """A foreground network's checkpoint or run folder, in torch: (its ``segment`` function, as
+    :func:`torch_segment`; its :class:`~model.image.mask.MaskSpec`, with the guided filter
+    calibrated for it): the background removal of the bundle it would be exported into."""
+    loaded = load_model(checkpoint)
+    if loaded.config.task != "foreground":
+        raise ValueError(f"--foreground {checkpoint} is a {loaded.config.task} model, not a foreground network")
+    spec = TASKS["foreground"].spec(loaded.config, loaded.meta)
+    return torch_segment(loaded.model, spec), spec
+
+
+def mask_ious(photos: list, segment, spec) -> list[float]:
+    """Mask IoU of each photo (a :class:`model.data.photos.Photo`) through the service's path
+    (:func:`model.image.mask.object_mask` with ``segment`` and ``spec``), at its own resolution;
+    0 where nothing is found."""
+
+    out = []
+    for photo in photos:
+        try:
+            ours = object_mask(photo.rgb, segment, spec) > 0.5
+        except NoObjectError:
+            ours = np.zeros(photo.mask.shape, bool)
+        out.append(mask_iou(ours, photo.mask > 0.5))
+    return out
+
+
+def evaluate_foreground(model, cfg: TrainConfig, run: str, split: str = "test", limit: int | None = None,
+                        runtime=None, bundle: str | None = None, meta: dict | None = None) -> dict:
+    """Mask IoU of the foreground network on each shape's photo-like test view (a render on a
+    held-out background, no alpha: :func:`model.data.photos.photo_split_view`), at the photo's own
+    resolution, through the service's path (:func:`model.image.mask.object_mask`: the guided filter,
+    clean-up, a second pass on a small object in a large photo; a photo where it finds nothing
+    scores 0); per category and overall, with the share of photos above 0.9.  ``meta``: the run's
+    provenance (its calibrated guided filter), for the network in torch."""
+
+    spec = runtime.bundle.mask_spec() if runtime is not None else TASKS[cfg.task].spec(cfg, meta)
+    segment = runtime.segment if runtime is not None else torch_segment(model, spec)
+    records = TASKS[cfg.task].dataset(cfg, split, 0, limit=limit)
+    t = time.perf_counter()
+    views = [(s, photo_split_view(s.images, s.shape_id)) for s in records.samples]
+    rows = [{"category": s.category, "shape_id": s.shape_id, "mask_iou": iou,
+             "object_share": float((photo.mask > 0.5).mean()), "photo_size": list(photo.mask.shape)}
+            for (s, photo), iou in zip(views, mask_ious([p for _, p in views], segment, spec))]
+    ious = np.array([r["mask_iou"] for r in rows])
+    per_cat = category_means([r["category"] for r in rows], list(ious))
+    return {"run": str(run), "task": cfg.task, "arch": cfg.arch, "split": split, "bundle": bundle,
+            "shapes": len(rows), "input": {"kind": "photos"}, "mask_spec": spec.to_dict(), "mask_iou": per_cat,
+            "mask_iou_category_mean": float(np.mean(list(per_cat.values()))), "mask_iou_mean": float(ious.mean()),
+            "mask_iou_median": float(np.median(ious)), "mask_iou_above_0.9": float((ious > 0.9).mean()),
+            "per_shape": rows, "seconds": time.perf_counter() - t}
