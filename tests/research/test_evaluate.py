@@ -8,8 +8,8 @@ from ..model.test_train import config
 
 
 def test_evaluate_per_category_takes_the_first_shapes_of_each_category(tiny_data, tmp_path):
-    from research.measures import first_of_each
     from research.evaluate import main as evaluate_main
+    from research.measures import first_of_each
 
     assert first_of_each(["a", "a", "b", "a", "c", "b", "b"], 2).tolist() == [0, 1, 2, 4, 5]
     assert first_of_each(["a", "b"], 1).tolist() == [0, 1] and first_of_each([], 3).tolist() == []
