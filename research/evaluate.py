@@ -203,8 +203,8 @@ class _ShapeEvaluation:
         samples = [self.records.samples[i] for i in idx]
         rt = self.runtime
         if self.o.photos:
-            images, framing = photo_batch(samples, self.task.spec(self.cfg), self.segment, self.o.remove_background, self.mask_spec,
-                                          self.o.exact_masks)
+            images, framing = photo_batch(samples, self.task.spec(self.cfg), self.segment, self.o.remove_background,
+                                          self.mask_spec, self.o.exact_masks)
             with torch.no_grad():
                 latent = (torch.from_numpy(rt.encode_image(images)) if rt is not None
                           else self.model.encoder(torch.from_numpy(images)))

@@ -186,7 +186,8 @@ def test_a_run_started_from_another_runs_weights(tiny_data, runs, tmp_path, caps
     """--init: a new run starts from another's weights (the same task and network), records where
     they came from, and research.release carries that into model.json; a run that does not fit is refused."""
     from model.train.__main__ import main
-    from research.release import RECIPES, package
+    from research.recipe import load_recipe
+    from research.release import package
 
     Trainer(config(tiny_data, tmp_path / "a", iters=2, **FG)).run()
     source = torch.load(tmp_path / "a" / "checkpoint.pt", weights_only=False)["model"]
@@ -196,12 +197,12 @@ def test_a_run_started_from_another_runs_weights(tiny_data, runs, tmp_path, caps
     assert json.loads((tmp_path / "b" / "init.json").read_text()) == {"path": str(tmp_path / "a"),
                                                                       "weights_sha256": None, "steps": 2}
     tuned.run()
-    meta = package(tmp_path / "b", tiny_data, tmp_path / "shipped", RECIPES["foreground"], ["foreground"], by_recipe=False)
+    meta = package(tmp_path / "b", tiny_data, tmp_path / "shipped", load_recipe("foreground"), ["foreground"], by_recipe=False)
     assert meta["init"]["path"] == str(tmp_path / "a") and meta["config"]["crop_share"] == 0.5
     kept = sorted((tmp_path / "b" / "steps").iterdir())[-1]       # a step the run kept: its run's init
-    assert package(kept, tiny_data, tmp_path / "kept", RECIPES["foreground"], ["foreground"],
+    assert package(kept, tiny_data, tmp_path / "kept", load_recipe("foreground"), ["foreground"],
                    by_recipe=False)["init"] == meta["init"]
-    assert package(tmp_path / "a", tiny_data, tmp_path / "scratch", RECIPES["foreground"], ["foreground"],
+    assert package(tmp_path / "a", tiny_data, tmp_path / "scratch", load_recipe("foreground"), ["foreground"],
                    by_recipe=False)["init"] is None
     fresh = Trainer(config(tiny_data, tmp_path / "c", iters=2, **FG)).model.state_dict()
     assert any(not torch.equal(fresh[k], v) for k, v in source.items() if v.is_floating_point())

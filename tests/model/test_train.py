@@ -373,14 +373,15 @@ def test_every_validated_step_keeps_its_weights_as_a_checkpoint_folder(tiny_data
     assert not all(torch.equal(early.model.state_dict()[k], final.model.state_dict()[k]) for k in trained)
     # a kept step is calibrated and packaged like a run: the checkpoint chosen on the validation split
     from research.calibrate import calibrate
-    from research.release import RECIPES, package
+    from research.recipe import load_recipe
+    from research.release import package
 
     report = calibrate(str(tmp_path / "run" / "steps" / "000003"), str(tiny_data), str(tmp_path / "cal"))
     calibrated = load_model(tmp_path / "cal")
     assert calibrated.meta["calibration"] == report and calibrated.meta["steps"] == 3
     moved = [k for k, v in calibrated.model.state_dict().items() if not torch.equal(v, early.model.state_dict()[k])]
     assert moved and all(k.startswith("decoder.pred.") and k.endswith(".bias") for k in moved)
-    meta = package(tmp_path / "cal", tiny_data, tmp_path / "shipped", RECIPES["completion"], ["completion"],
+    meta = package(tmp_path / "cal", tiny_data, tmp_path / "shipped", load_recipe("completion"), ["completion"],
                    by_recipe=False)
     assert meta["steps"] == 3 and meta["calibration"] == report
     shipped = load_model(tmp_path / "shipped").model.state_dict()

@@ -16,11 +16,12 @@ def test_a_released_checkpoint_is_stored_in_half_precision_and_evaluated_as_stor
     weights equal to the rounded ones, and its evaluation is recorded in model.json."""
     from model.checkpoint import load_model
     from research.evaluate import main as evaluate_main
-    from research.release import RECIPES, package, record_evaluation
+    from research.recipe import load_recipe
+    from research.release import package, record_evaluation
 
     Trainer(config(tiny_data, tmp_path / "run", iters=2)).run()
     out = tmp_path / "shipped"
-    meta = package(tmp_path / "run", tiny_data, out, RECIPES["completion"], ["completion", "--workdir", "w"])
+    meta = package(tmp_path / "run", tiny_data, out, load_recipe("completion"), ["completion", "--workdir", "w"])
     stored = torch.load(out / "model.pt", weights_only=True)
     assert meta["weights_dtype"] == "float16" and meta["evaluation"] is None
     assert {v.dtype for v in stored.values() if v.is_floating_point()} == {torch.float16}
@@ -32,7 +33,7 @@ def test_a_released_checkpoint_is_stored_in_half_precision_and_evaluated_as_stor
     # a decode setting chosen for the run's weights (research.calibrate --keep-scan) goes with them
     chosen = {"empty_bias": {"5": 1.0}, "split": "val"}
     (tmp_path / "run" / "keep_scan.json").write_text(json.dumps(chosen))
-    again = package(tmp_path / "run", tiny_data, tmp_path / "again", RECIPES["completion"], ["completion"])
+    again = package(tmp_path / "run", tiny_data, tmp_path / "again", load_recipe("completion"), ["completion"])
     assert again["keep_scan"] == chosen and load_model(tmp_path / "again").meta["keep_scan"] == chosen
     assert evaluate_main([str(out), "--data", str(tiny_data), "--split", "val", "--out", str(tmp_path / "e.json")]) == 0
     meta = record_evaluation(out, json.loads((tmp_path / "e.json").read_text()))
@@ -44,13 +45,14 @@ def test_release_packages_a_run_trained_by_hand_without_claiming_the_recipe(tiny
     """research.release --run: the run's own configuration and steps go into model.json, no recipe
     training command; a missing or damaged run or a run of another task is refused (exit 2, one line) before
     anything is built."""
-    from research.release import RECIPES, package
+    from research.recipe import load_recipe
     from research.release import main as release_main
+    from research.release import package
 
     Trainer(config(tiny_data, tmp_path / "run", iters=2)).run()
-    meta = package(tmp_path / "run", tiny_data, tmp_path / "shipped", RECIPES["completion"],
+    meta = package(tmp_path / "run", tiny_data, tmp_path / "shipped", load_recipe("completion"),
                    ["completion", "--workdir", "w", "--run", "run"], by_recipe=False)
-    assert meta["train_command"] is None and meta["teacher_command"] is None and meta["refine_command"] is None
+    assert meta["train_command"] is None and meta["recipe"] is None
     assert meta["steps"] == 2 and meta["config"]["iters"] == 2 and meta["command"].endswith("--run run")
     work = tmp_path / "work"
     assert release_main(["foreground", "--workdir", str(work), "--run", str(tmp_path / "nothing")]) == 2
@@ -83,12 +85,12 @@ def test_release_packages_a_run_with_the_dataset_it_was_trained_on(tiny_data, tm
     (tmp_path / "deeper" / "manifest.json").write_text(json.dumps({"config": {"depth": 6}}))
     for folder, needle in ((tmp_path / "deeper", "built at depth 6, but"), (tmp_path, "no manifest.json"),
                            (tiny_data, "is not the dataset")):
-        assert release_main(["image", "--workdir", str(work), "--run", str(tmp_path / "run"), "--data", str(folder),
+        assert release_main(["image-to-shape", "--workdir", str(work), "--run", str(tmp_path / "run"), "--data", str(folder),
                              "--out", str(out)]) == 2
         err = capsys.readouterr().err
         assert needle in err and err.count("\n") == 1
         assert not work.exists() and not out.exists()
-    assert release_main(["image", "--workdir", str(work), "--run", str(tmp_path / "run"), "--data", str(data),
+    assert release_main(["image-to-shape", "--workdir", str(work), "--run", str(tmp_path / "run"), "--data", str(data),
                          "--out", str(out)]) == 0
     meta = json.loads((out / "model.json").read_text())
     manifest = json.loads((data / "manifest.json").read_text())
