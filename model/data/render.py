@@ -14,6 +14,8 @@ shape's front (+Z) and positive elevation looks down on it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import trimesh
 
@@ -39,10 +41,38 @@ def rasterize(
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     zbuf = np.full(width * height, np.inf)
     fbuf = np.full(width * height, -1, dtype=np.int64)
-    if len(faces) == 0:
-        return zbuf.reshape(height, width), fbuf.reshape(height, width)
-    t = xy[faces]
-    z = depth[faces]
+    tri = _on_screen(xy[faces], depth[faces], width, height) if len(faces) else None
+    if tri is not None:
+        counts = tri.w * tri.h
+        ends = np.cumsum(counts)
+        start = 0
+        while start < len(tri.idx):
+            base = ends[start - 1] if start > 0 else 0
+            stop = max(int(np.searchsorted(ends, base + _CHUNK, side="right")), start + 1)
+            _fill(tri, start, stop, counts, ends, base, width, zbuf, fbuf)
+            start = stop
+    return zbuf.reshape(height, width), fbuf.reshape(height, width)
+
+
+@dataclass
+class _Triangles:
+    """The triangles that reach the screen (``idx``: their face numbers): their pixel boxes
+    (``jmin``, ``imin``, width ``w``, height ``h``) and, as affine functions ``a x + b y + c`` of
+    the pixel centre, two barycentric coordinates (``l0``, ``l1``) and the depth (``z``)."""
+
+    idx: np.ndarray
+    jmin: np.ndarray
+    imin: np.ndarray
+    w: np.ndarray
+    h: np.ndarray
+    l0: tuple[np.ndarray, np.ndarray, np.ndarray]
+    l1: tuple[np.ndarray, np.ndarray, np.ndarray]
+    z: tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def _on_screen(t: np.ndarray, z: np.ndarray, width: int, height: int) -> _Triangles | None:
+    """The triangles ``t`` (F, 3, 2 pixel coordinates; depths ``z`` (F, 3)) that are finite, not
+    degenerate and overlap the screen, as :class:`_Triangles` (None when there is none)."""
     x0, x1, x2 = t[:, 0, 0], t[:, 1, 0], t[:, 2, 0]
     y0, y1, y2 = t[:, 0, 1], t[:, 1, 1], t[:, 2, 1]
     d = (y1 - y2) * (x0 - x2) + (x2 - x1) * (y0 - y2)
@@ -51,26 +81,16 @@ def rasterize(
         jmax = np.floor(np.maximum(np.maximum(x0, x1), x2) - 0.5)
         imin = np.ceil(np.minimum(np.minimum(y0, y1), y2) - 0.5)
         imax = np.floor(np.maximum(np.maximum(y0, y1), y2) - 0.5)
-    ok = (
-        np.isfinite(t).all(axis=(1, 2))
-        & np.isfinite(z).all(axis=1)
-        & (np.abs(d) > 1e-12)
-        & (jmax >= 0)
-        & (imax >= 0)
-        & (jmin <= width - 1)
-        & (imin <= height - 1)
-    )
+    ok = (np.isfinite(t).all(axis=(1, 2)) & np.isfinite(z).all(axis=1) & (np.abs(d) > 1e-12)
+          & (jmax >= 0) & (imax >= 0) & (jmin <= width - 1) & (imin <= height - 1))
     idx = np.nonzero(ok)[0]
     if len(idx) == 0:
-        return zbuf.reshape(height, width), fbuf.reshape(height, width)
+        return None
     jmin = np.clip(jmin[idx], 0, width - 1).astype(np.int64)
     jmax = np.clip(jmax[idx], 0, width - 1).astype(np.int64)
     imin = np.clip(imin[idx], 0, height - 1).astype(np.int64)
     imax = np.clip(imax[idx], 0, height - 1).astype(np.int64)
-    w = jmax - jmin + 1
-    h = imax - imin + 1
     x0, x1, x2, y0, y1, y2, d = (a[idx] for a in (x0, x1, x2, y0, y1, y2, d))
-    # Barycentric coordinates and depth as affine functions a*x + b*y + c.
     a0, b0 = (y1 - y2) / d, (x2 - x1) / d
     c0 = -(a0 * x2 + b0 * y2)
     a1, b1 = (y2 - y0) / d, (x0 - x2) / d
@@ -79,38 +99,36 @@ def rasterize(
     za = a0 * (zz[:, 0] - zz[:, 2]) + a1 * (zz[:, 1] - zz[:, 2])
     zb = b0 * (zz[:, 0] - zz[:, 2]) + b1 * (zz[:, 1] - zz[:, 2])
     zc = c0 * (zz[:, 0] - zz[:, 2]) + c1 * (zz[:, 1] - zz[:, 2]) + zz[:, 2]
-    counts = w * h
-    ends = np.cumsum(counts)
-    start = 0
-    while start < len(idx):
-        base = ends[start - 1] if start > 0 else 0
-        stop = int(np.searchsorted(ends, base + _CHUNK, side="right"))
-        stop = max(stop, start + 1)
-        sel = slice(start, stop)
-        cnt = counts[sel]
-        rep = np.repeat(np.arange(start, stop), cnt)
-        offs = np.arange(int(cnt.sum())) - np.repeat(ends[sel] - cnt - base, cnt)
-        px = jmin[rep] + offs % w[rep]
-        py = imin[rep] + offs // w[rep]
-        cx = px + 0.5
-        cy = py + 0.5
-        l0 = a0[rep] * cx + b0[rep] * cy + c0[rep]
-        l1 = a1[rep] * cx + b1[rep] * cy + c1[rep]
-        eps = -1e-9
-        inside = (l0 >= eps) & (l1 >= eps) & (1.0 - l0 - l1 >= eps)
-        rep, px, py, cx, cy = rep[inside], px[inside], py[inside], cx[inside], cy[inside]
-        zz_c = za[rep] * cx + zb[rep] * cy + zc[rep]
-        pix = py * width + px
-        order = np.lexsort((zz_c, pix))
-        pix, zz_c, rep = pix[order], zz_c[order], rep[order]
-        first = np.ones(len(pix), dtype=bool)
-        first[1:] = pix[1:] != pix[:-1]
-        pix, zz_c, rep = pix[first], zz_c[first], rep[first]
-        better = zz_c < zbuf[pix]
-        zbuf[pix[better]] = zz_c[better]
-        fbuf[pix[better]] = idx[rep[better]]
-        start = stop
-    return zbuf.reshape(height, width), fbuf.reshape(height, width)
+    return _Triangles(idx, jmin, imin, jmax - jmin + 1, imax - imin + 1, (a0, b0, c0), (a1, b1, c1), (za, zb, zc))
+
+
+def _fill(tri: _Triangles, start: int, stop: int, counts: np.ndarray, ends: np.ndarray, base: int, width: int,
+          zbuf: np.ndarray, fbuf: np.ndarray) -> None:
+    """Write triangles ``start``..``stop`` of ``tri`` into the flat buffers: every pixel of their
+    boxes inside them, the nearest depth winning."""
+    sel = slice(start, stop)
+    cnt = counts[sel]
+    rep = np.repeat(np.arange(start, stop), cnt)
+    offs = np.arange(int(cnt.sum())) - np.repeat(ends[sel] - cnt - base, cnt)
+    px = tri.jmin[rep] + offs % tri.w[rep]
+    py = tri.imin[rep] + offs // tri.w[rep]
+    cx, cy = px + 0.5, py + 0.5
+    (a0, b0, c0), (a1, b1, c1), (za, zb, zc) = tri.l0, tri.l1, tri.z
+    l0 = a0[rep] * cx + b0[rep] * cy + c0[rep]
+    l1 = a1[rep] * cx + b1[rep] * cy + c1[rep]
+    eps = -1e-9
+    inside = (l0 >= eps) & (l1 >= eps) & (1.0 - l0 - l1 >= eps)
+    rep, px, py, cx, cy = rep[inside], px[inside], py[inside], cx[inside], cy[inside]
+    zz_c = za[rep] * cx + zb[rep] * cy + zc[rep]
+    pix = py * width + px
+    order = np.lexsort((zz_c, pix))
+    pix, zz_c, rep = pix[order], zz_c[order], rep[order]
+    first = np.ones(len(pix), dtype=bool)
+    first[1:] = pix[1:] != pix[:-1]
+    pix, zz_c, rep = pix[first], zz_c[first], rep[first]
+    better = zz_c < zbuf[pix]
+    zbuf[pix[better]] = zz_c[better]
+    fbuf[pix[better]] = tri.idx[rep[better]]
 
 
 def look_at(azimuth_deg: float, elevation_deg: float, distance: float) -> tuple[np.ndarray, np.ndarray]:
