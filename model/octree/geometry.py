@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 MAX_POLYGON = 6
@@ -22,7 +23,7 @@ _EDGES = np.array(
      if np.abs(_CORNERS[a] - _CORNERS[b]).sum() == 1.0]
 )
 _EDGE_START = _CORNERS[_EDGES[:, 0]]
-_EDGE_DIR = _CORNERS[_EDGES[:, 1]] - _CORNERS[_EDGES[:, 0]]
+_EDGE_DIR = (_CORNERS[_EDGES[:, 1]] - _CORNERS[_EDGES[:, 0]]).astype(np.float64)
 
 
 def symmetric_eigen(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -164,42 +165,11 @@ def cube_polygons(normal: np.ndarray, offset: np.ndarray, size: np.ndarray | flo
     Returns vertices (M, 6, 3) ordered counter-clockwise about ``n`` (padded by repeating the
     last vertex) and the vertex counts (M,); a count of 0 means the plane misses the cube.
     """
-    size = np.broadcast_to(np.asarray(size, dtype=np.float64), offset.shape)
-    m = len(offset)
-    f = (_CORNERS @ normal.T).T * size[:, None] + offset[:, None]     # (M, 8)
-    tol = 1e-12 * size[:, None]
-    on = np.abs(f) <= tol
-    fa, fb = f[:, _EDGES[:, 0]], f[:, _EDGES[:, 1]]
-    cross = ((fa > tol) & (fb < -tol)) | ((fa < -tol) & (fb > tol))
-    t = fa / np.where(cross, fa - fb, 1.0)
-    valid = np.concatenate([on, cross], axis=1)                       # (M, 20)
-    count = valid.sum(1)
+    size = np.ascontiguousarray(np.broadcast_to(np.asarray(size, dtype=np.float64), offset.shape))
+    normal = np.ascontiguousarray(normal, dtype=np.float64)
     u, v = plane_basis(normal)
-    # Candidates per coordinate: the 8 corners, then the 12 edge crossings, scaled.
-    cand = []
-    for c in range(3):
-        cc = np.empty((m, 20))
-        cc[:, :8] = _CORNERS[:, c] * size[:, None]
-        cc[:, 8:] = (_EDGE_START[:, c] + t * _EDGE_DIR[:, c]) * size[:, None]
-        cand.append(cc)
-    # Order the vertices by their angle about their mean, in the plane's (u, v) frame; angles of
-    # the valid candidates only (at most 6 of the 20), the others +inf.
-    weight = valid.astype(np.float64)
-    inv = 1.0 / np.maximum(count, 1)
-    row, col = np.nonzero(valid)
-    au, av = np.zeros(len(row)), np.zeros(len(row))
-    for c in range(3):
-        rel = cand[c][row, col] - ((weight * cand[c]).sum(1) * inv)[row]
-        au += rel * u[row, c]
-        av += rel * v[row, c]
-    ang = np.full((m, 20), np.inf)
-    ang[row, col] = np.arctan2(av, au)
-    order = np.argsort(ang, axis=1, kind="stable")[:, :MAX_POLYGON]      # ties in input order everywhere
-    count = np.minimum(count, MAX_POLYGON)
-    last = np.take_along_axis(order, np.maximum(count - 1, 0)[:, None], axis=1)
-    order = np.where(np.arange(MAX_POLYGON)[None] >= count[:, None], last, order)
-    rows = np.arange(m)[:, None]
-    return np.stack([cand[c][rows, order] for c in range(3)], axis=2), count
+    return _cube_polygons(normal, np.ascontiguousarray(offset, dtype=np.float64), size, u, v, _CORNERS, _EDGES,
+                          _EDGE_START, _EDGE_DIR, MAX_POLYGON)
 
 
 def polygon_distance(points: np.ndarray, normal: np.ndarray, offset: np.ndarray,
@@ -375,3 +345,68 @@ def to_y_up(up: str) -> np.ndarray:
 def up_rotations(up: str = "y", count: int = ROTATIONS) -> np.ndarray:
     """(count, 3, 3): the rotations by k * 360/count degrees about ``up``, k = 0..count-1."""
     return np.stack([axis_rotation(2 * np.pi * k / count, up) for k in range(count)])
+
+
+@numba.njit(cache=True, nogil=True)
+def _cube_polygons(normal, offset, size, u, v, corners, edges, edge_start, edge_dir, max_polygon):
+    """:func:`cube_polygons` compiled, one plane at a time: the corners on the plane and the edges
+    it crosses (tolerance 1e-12 of the cube's side), ordered by their angle about their mean in the
+    plane's (u, v) frame (a stable sort: ties in candidate order, corners before edges)."""
+    m = len(offset)
+    verts = np.empty((m, max_polygon, 3))
+    counts = np.zeros(m, np.int64)
+    cand = np.empty((20, 3))
+    valid = np.empty(20, np.bool_)
+    f = np.empty(8)
+    idx = np.empty(20, np.int64)
+    ang = np.empty(20)
+    for i in range(m):
+        s = size[i]
+        tol = 1e-12 * s
+        for c in range(8):
+            f[c] = (corners[c, 0] * normal[i, 0] + corners[c, 1] * normal[i, 1] + corners[c, 2] * normal[i, 2]) * s \
+                + offset[i]
+            valid[c] = abs(f[c]) <= tol
+            for a in range(3):
+                cand[c, a] = corners[c, a] * s
+        for e in range(12):
+            fa, fb = f[edges[e, 0]], f[edges[e, 1]]
+            cross = (fa > tol and fb < -tol) or (fa < -tol and fb > tol)
+            t = fa / (fa - fb) if cross else fa
+            valid[8 + e] = cross
+            for a in range(3):
+                cand[8 + e, a] = (edge_start[e, a] + t * edge_dir[e, a]) * s
+        count = 0
+        mean = np.zeros(3)
+        for j in range(20):
+            if valid[j]:
+                idx[count] = j
+                count += 1
+                for a in range(3):
+                    mean[a] += cand[j, a]
+        if count == 0:
+            for j in range(max_polygon):
+                verts[i, j] = cand[0]
+            continue
+        for a in range(3):
+            mean[a] /= count
+        for r in range(count):
+            j = idx[r]
+            au = av = 0.0
+            for a in range(3):
+                rel = cand[j, a] - mean[a]
+                au += rel * u[i, a]
+                av += rel * v[i, a]
+            ang[r] = np.arctan2(av, au)
+        for r in range(1, count):                       # stable insertion sort by angle
+            aj, ij = ang[r], idx[r]
+            q = r
+            while q > 0 and ang[q - 1] > aj:
+                ang[q], idx[q] = ang[q - 1], idx[q - 1]
+                q -= 1
+            ang[q], idx[q] = aj, ij
+        kept = min(count, max_polygon)
+        counts[i] = kept
+        for r in range(max_polygon):
+            verts[i, r] = cand[idx[min(r, kept - 1)]]
+    return verts, counts

@@ -5,13 +5,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .errors import OctreeInputError
 from .geometry import eigenvector, symmetric_eigen
 from .octree import Normalization
+from .orient import covariances, neighbour_graph, propagate_signs, spanning_tree, stable_order
 
 CUBE_FILL = 0.96
 """The longest bounding-box edge fills this fraction of the unit cube (a margin of 2% a side)."""
@@ -154,59 +153,29 @@ def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
 
     Orientation follows Hoppe et al.: signs propagate along a minimum spanning tree of the kNN
     graph weighted by 1 - |n_i . n_j|; each connected part is then flipped so that most of its
-    normals point away from its centroid.
+    normals point away from its centroid.  The covariances, the tree and the walk along it are
+    compiled (:mod:`model.octree.orient`).
     """
     n = len(points)
     k = int(min(k, n))
-    tree = cKDTree(points)
-    _, nn = tree.query(points, k=k, workers=-1)
-    nb = points[nn]                                   # (n, k, 3)
-    mean = nb.mean(1)
-    d = nb - mean[:, None]
-    cov = np.stack([(d[..., a] * d[..., b]).mean(1) for a, b in
-                    ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))])
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    _, nn = cKDTree(points).query(points, k=k, workers=-1)
+    nn = np.ascontiguousarray(nn.reshape(n, k), dtype=np.int64)
+    cov = covariances(points, nn)
     normals = eigenvector(cov, symmetric_eigen(cov)[2])
     if k < 2:
         return normals
-    rows = np.repeat(np.arange(n), k - 1)
-    cols = nn[:, 1:].ravel()
-    w = 1.0 - np.abs((normals[rows] * normals[cols]).sum(1)) + 1e-6
-    graph = sparse.coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
-    graph = graph.maximum(graph.T)
-    mst = csgraph.minimum_spanning_tree(graph)
-    mst = (mst + mst.T).tocoo()
-    ncomp, comp = csgraph.connected_components(mst, directed=False)
-    # One breadth-first search over all parts: a virtual node n links to one root per part.
-    roots = np.unique(comp, return_index=True)[1]
-    rows = np.r_[mst.row, np.full(len(roots), n), roots]
-    cols = np.r_[mst.col, roots, np.full(len(roots), n)]
-    joined = sparse.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n + 1, n + 1)).tocsr()
-    _, pred = csgraph.breadth_first_order(joined, n, directed=False, return_predecessors=True)
-    pred = pred[:n].copy()
-    pred[roots] = roots
-    # Sign relative to the tree predecessor; _propagate turns it into an absolute sign.
-    sign = np.where((normals * normals[pred]).sum(1) < 0, -1.0, 1.0)
-    normals = normals * _propagate(sign, pred)[:, None]
+    rows, cols, weights = neighbour_graph(nn, normals)
+    order = stable_order(weights)      # np.argsort(kind="stable"): the order (ties included) SciPy's Kruskal took
+    sign, part = propagate_signs(n, *spanning_tree(n, rows, cols, order), normals)
+    normals = normals * sign[:, None]
     # Each part faces outward: most normals point away from its centroid.
-    count = np.bincount(comp, minlength=ncomp)
-    centroid = np.stack([np.bincount(comp, points[:, k], ncomp) for k in range(3)], 1) / count[:, None]
-    out = np.sign(((points - centroid[comp]) * normals).sum(1))
-    flip = np.bincount(comp, out, ncomp) < 0
-    normals[flip[comp]] *= -1.0
+    parts = int(part.max()) + 1
+    count = np.bincount(part, minlength=parts)
+    centroid = np.stack([np.bincount(part, points[:, a], parts) for a in range(3)], 1) / count[:, None]
+    out = np.sign(((points - centroid[part]) * normals).sum(1))
+    flip = np.bincount(part, out, parts) < 0
+    normals[flip[part]] *= -1.0
     return normals
 
 
-def _propagate(rel: np.ndarray, pred: np.ndarray) -> np.ndarray:
-    """Absolute signs from signs relative to the tree predecessor (roots have pred == self).
-
-    Pointer jumping: log(depth) vectorised rounds instead of a walk over the tree.
-    """
-    sign = rel.copy()
-    sign[pred == np.arange(len(pred))] = 1.0
-    hop = pred.copy()
-    while True:
-        sign = sign * sign[hop]
-        nxt = hop[hop]
-        if np.array_equal(nxt, hop):
-            return sign
-        hop = nxt

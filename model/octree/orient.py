@@ -1,0 +1,220 @@
+"""Compiled kernels of normal estimation (numba): the covariance of each point's neighbourhood and
+Hoppe et al.'s orientation, signs propagated along a minimum spanning tree of the k-nearest-
+neighbour graph.  NumPy cannot express the tree's union-find and breadth-first walk without a
+Python loop per point; these run them compiled (cached on disk after the first call).
+
+Invariants: every function is a pure function of its arrays; :func:`covariances` sums in the
+neighbours' order as NumPy does, :func:`spanning_tree` takes edges in the order given (ascending
+weight), and :func:`propagate_signs` walks from the lowest-numbered point of each connected part.
+The graph's edges, their weights and their order are those SciPy's ``minimum_spanning_tree``
+took (the symmetric matrix's data in CSR order, stably sorted), so the tree and the normals are
+SciPy's bit for bit, on clouds with many tied weights too.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, nogil=True)
+def _pairwise(x: np.ndarray, n: int) -> float:
+    """The sum of ``x[:n]`` in NumPy's order for a contiguous reduction (pairwise: below 8
+    values one by one; up to 128, eight running sums combined as a tree, the rest one by one)."""
+    if n < 8:
+        total = 0.0
+        for i in range(n):
+            total += x[i]
+        return total
+    r = x[:8].copy()
+    i = 8
+    while i < n - n % 8:
+        for j in range(8):
+            r[j] += x[i + j]
+        i += 8
+    total = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    while i < n:
+        total += x[i]
+        i += 1
+    return total
+
+
+@numba.njit(cache=True, nogil=True)
+def covariances(points: np.ndarray, nn: np.ndarray) -> np.ndarray:
+    """(6, n): xx, xy, xz, yy, yz, zz of the covariance (divided by k) of each point's ``nn`` (n, k)
+    neighbours ``points[nn[i]]`` about their mean, summed in the order NumPy sums
+    ``nb.mean(1)`` (one by one) and ``(d[..., a] * d[..., b]).mean(1)`` (:func:`_pairwise`): the
+    same bits as that NumPy expression."""
+    n, k = nn.shape
+    out = np.empty((6, n))
+    d = np.empty((3, k))
+    prod = np.empty(k)
+    pairs = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+    for i in range(n):
+        for a in range(3):
+            m = 0.0
+            for j in range(k):
+                m += points[nn[i, j], a]
+            m /= k
+            for j in range(k):
+                d[a, j] = points[nn[i, j], a] - m
+        for c in range(6):
+            a, b = pairs[c]
+            for j in range(k):
+                prod[j] = d[a, j] * d[b, j]
+            out[c, i] = _pairwise(prod, k) / k
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _root(parent: np.ndarray, i: int) -> int:
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]            # path halving
+        i = parent[i]
+    return i
+
+
+@numba.njit(cache=True, nogil=True)
+def _weight(normals: np.ndarray, i: int, j: int) -> float:
+    """1 - |n_i . n_j| + 1e-6: the same bits for (i, j) and (j, i)."""
+    dot = normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2]
+    return 1.0 - abs(dot) + 1e-6
+
+
+@numba.njit(cache=True, nogil=True)
+def neighbour_graph(nn: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The k-nearest-neighbour graph made undirected, as the rows, columns and weights
+    (:func:`_weight`) of its symmetric sparse matrix in canonical CSR order (rows ascending, each
+    row's columns ascending, every pair once): point ``i`` joins its neighbours ``nn[i, 1:]``
+    (``nn[i, 0]`` is ``i`` itself) and the points that have ``i`` among theirs."""
+    n, k = nn.shape
+    incoming = np.zeros(n + 1, np.int64)
+    for i in range(n):
+        for j in range(1, k):
+            incoming[nn[i, j] + 1] += 1
+    start = np.cumsum(incoming)
+    fill = start[:-1].copy()
+    source = np.empty(start[n], np.int64)
+    for i in range(n):
+        for j in range(1, k):
+            t = nn[i, j]
+            source[fill[t]] = i
+            fill[t] += 1
+    rows = np.empty(n * (k - 1) + start[n], np.int64)
+    cols = np.empty_like(rows)
+    m = 0
+    row = np.empty(k - 1 + (start[1:] - start[:-1]).max(), np.int64)
+    for i in range(n):
+        c = 0
+        for j in range(1, k):
+            row[c] = nn[i, j]
+            c += 1
+        for s in range(start[i], start[i + 1]):
+            row[c] = source[s]
+            c += 1
+        for r in range(1, c):                  # insertion sort: a row holds about 2k entries
+            v, q = row[r], r
+            while q > 0 and row[q - 1] > v:
+                row[q] = row[q - 1]
+                q -= 1
+            row[q] = v
+        for r in range(c):
+            if r > 0 and row[r] == row[r - 1]:
+                continue
+            rows[m], cols[m] = i, row[r]
+            m += 1
+    weights = np.empty(m)
+    for e in range(m):
+        weights[e] = _weight(normals, rows[e], cols[e])
+    return rows[:m], cols[:m], weights
+
+
+@numba.njit(cache=True, nogil=True)
+def stable_order(weights: np.ndarray) -> np.ndarray:
+    """``np.argsort(weights, kind="stable")`` of non-negative floats, by a least-significant-digit
+    radix sort of their bit patterns (which order as the floats do), 16 bits a pass."""
+    keys = weights.view(np.uint64)
+    order = np.arange(len(weights))
+    spare = np.empty_like(order)
+    count = np.empty(65537, np.int64)
+    for shift in range(0, 64, 16):
+        count[:] = 0
+        for i in order:
+            count[((keys[i] >> shift) & 0xFFFF) + 1] += 1
+        if count[1] == len(weights):            # every key's digit is 0: this pass moves nothing
+            continue
+        for d in range(65536):
+            count[d + 1] += count[d]
+        for i in order:
+            d = (keys[i] >> shift) & 0xFFFF
+            spare[count[d]] = i
+            count[d] += 1
+        order, spare = spare, order
+    return order
+
+
+@numba.njit(cache=True, nogil=True)
+def spanning_tree(n: int, a: np.ndarray, b: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Kruskal's minimum spanning forest of ``n`` nodes: edges ``a[e]``-``b[e]`` taken in
+    ``order`` (ascending weight); returns the forest's edges (two arrays)."""
+    parent = np.arange(n)
+    size = np.ones(n, np.int64)
+    ta = np.empty(max(n - 1, 0), np.int64)
+    tb = np.empty(max(n - 1, 0), np.int64)
+    m = 0
+    for e in order:
+        ra, rb = _root(parent, a[e]), _root(parent, b[e])
+        if ra == rb:
+            continue
+        if size[ra] < size[rb]:
+            ra, rb = rb, ra
+        parent[rb] = ra
+        size[ra] += size[rb]
+        ta[m], tb[m] = a[e], b[e]
+        m += 1
+        if m == n - 1:
+            break
+    return ta[:m], tb[:m]
+
+
+@numba.njit(cache=True, nogil=True)
+def propagate_signs(n: int, ta: np.ndarray, tb: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signs (n,) making ``normals`` consistent along the forest ``ta``-``tb`` (a node's sign is
+    its tree parent's, negated where their normals point apart), walked breadth first from the
+    lowest-numbered node of each part (sign +1); and each node's part number (0, 1, ...)."""
+    degree = np.zeros(n + 1, np.int64)
+    for e in range(len(ta)):
+        degree[ta[e] + 1] += 1
+        degree[tb[e] + 1] += 1
+    start = np.cumsum(degree)
+    fill = start[:-1].copy()
+    adjacent = np.empty(2 * len(ta), np.int64)
+    for e in range(len(ta)):
+        adjacent[fill[ta[e]]] = tb[e]
+        fill[ta[e]] += 1
+        adjacent[fill[tb[e]]] = ta[e]
+        fill[tb[e]] += 1
+    sign = np.zeros(n)
+    part = np.full(n, -1, np.int64)
+    queue = np.empty(n, np.int64)
+    parts = 0
+    for root in range(n):
+        if part[root] >= 0:
+            continue
+        sign[root], part[root] = 1.0, parts
+        head, tail = 0, 1
+        queue[0] = root
+        while head < tail:
+            v = queue[head]
+            head += 1
+            for s in range(start[v], start[v + 1]):
+                w = adjacent[s]
+                if part[w] >= 0:
+                    continue
+                dot = normals[v, 0] * normals[w, 0] + normals[v, 1] * normals[w, 1] + normals[v, 2] * normals[w, 2]
+                sign[w] = -sign[v] if dot < 0 else sign[v]
+                part[w] = parts
+                queue[tail] = w
+                tail += 1
+        parts += 1
+    return sign, part
