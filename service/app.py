@@ -20,6 +20,18 @@ ROUTERS = (shapes.router, models.router, health.router, demo.router, apidocs.rou
 """Every router of the app, in the order they match."""
 
 
+API_DESCRIPTION = """A photo or a partial scan in, a 3D shape out (Adaptive O-CNN, onnxruntime).
+Errors are JSON: `{"error": {"code", "message", "hint"}}`.
+
+**Changelog**
+
+- 2026-11-28: `POST /v1/image-to-shape` takes `box=left,top,right,bottom` (x0,y0,x1,y1, the
+  uploaded image's pixels): the object is looked for inside it. **`X-Crop-Box` is now
+  left,top,right,bottom** (x0,y0,x1,y1), the order boxes come in; it was top,left,bottom,right.
+  New header `X-Mask-Confidence`: how sure the foreground network's mask is at its edge (0 to 1).
+"""
+
+
 def create_app(settings: Settings | None = None, engine: Engine | None = None) -> FastAPI:
     """The app; bundles load when it starts (lifespan), so a bad bundle stops startup.
     ``engine``: one whose bundles are already loaded (``python -m service`` checks them first)."""
@@ -36,8 +48,7 @@ def create_app(settings: Settings | None = None, engine: Engine | None = None) -
         eng.limiter.close()
 
     app = FastAPI(title="Adaptive O-CNN", version="1", lifespan=lifespan, docs_url=None, redoc_url=None,
-                  description="A photo or a partial scan in, a patch mesh out (Adaptive O-CNN, onnxruntime). "
-                              "Errors are JSON: {\"error\": {\"code\", \"message\", \"hint\"}}.")
+                  description=API_DESCRIPTION)
     if engine is not None:
         app.state.engine = engine                               # usable without the lifespan (ASGI test tools)
     errors.install(app)
@@ -48,7 +59,8 @@ def create_app(settings: Settings | None = None, engine: Engine | None = None) -
                            allow_headers=["Authorization", "Content-Type"],
                            expose_headers=["Content-Disposition", "X-Model-Name", "X-Model-Version",
                                            "X-Octree-Nodes", "X-Octree-Leaves", "X-Surface", "X-Mesh-Faces",
-                                           "X-Mesh-Closed", "X-Mask", "X-Crop-Box", "X-Foreground-Ratio",
+                                           "X-Mesh-Closed", "X-Mask", "X-Crop-Box", "X-Mask-Confidence",
+                                           "X-Foreground-Ratio",
                                            "Server-Timing"])
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
 

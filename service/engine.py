@@ -135,7 +135,7 @@ class Engine:
         with job.timer("decode_input"):
             return image_input(job.data, b.image_spec(), self.settings.max_image_pixels,
                                segment if served.runtime.has_foreground else None, job.remove_background,
-                               job.foreground_ratio, b.mask_spec() or MaskSpec())
+                               job.foreground_ratio, b.mask_spec() or MaskSpec(), box=job.box)
 
     def mask_png(self, job: ImageJob) -> tuple[bytes, Framed]:
         """The mask a photo's framing used, as an 8-bit greyscale PNG of the photo's size (debug=mask),

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from model.formats import IMAGE_FORMATS, MESH_FORMATS, POINT_FORMATS, identify, not_taken
 from model.image.decode import ImageError, decode_photo
-from model.image.frame import Framed, ImageSpec, frame_object
+from model.image.frame import Framed, ImageSpec, frame_object, region_of
 from model.image.mask import MaskSpec, NoObjectError
 from model.octree import OctreeInputError
 from model.octree.inputs import HEADER_BYTES, LoadedInput, load_input, ply_vertex_count
@@ -29,21 +29,32 @@ IMAGES_TAKEN = f"this endpoint takes an image ({IMAGE_FORMATS})"
 
 
 def image_input(data: bytes, spec: ImageSpec, max_pixels: int, segment=None, remove_background: str = "auto",
-                foreground_ratio: float | None = None, mask_spec: MaskSpec = MaskSpec()) -> Framed:
+                foreground_ratio: float | None = None, mask_spec: MaskSpec = MaskSpec(), refine=None,
+                box: tuple[int, int, int, int] | None = None) -> Framed:
     """An uploaded image decoded (a large photo reduced as it is decoded:
     :func:`model.image.decode.decode_photo`) and framed for the encoder
     (:func:`model.image.frame.frame_object`: ``segment`` is the foreground network, None without
-    one; the upload's size kept on the result), or a 4xx (415 naming what else it is, 422 when it
-    shows no object or asks for a background removal the model cannot do)."""
+    one, ``refine`` its refinement network; ``box``: left, top, right, bottom in the upload's pixels,
+    where to look for the object; the upload's size kept on the result), or a 4xx (415 naming what
+    else it is, 422 when it shows no object, the box holds none or lies outside the image, or it
+    asks for a background removal the model cannot do)."""
     if not data:
         raise ServiceError("empty_input", "the 'image' field is empty", "upload the image file's bytes")
     try:
         decoded = decode_photo(data, max_pixels)
-        framed = frame_object(decoded.rgba, spec, segment, remove_background, foreground_ratio, mask_spec)
+        try:
+            region = None if box is None else region_of(box, decoded.size, decoded.rgba.shape[:2])
+        except ImageError as exc:
+            raise ServiceError("invalid_box", str(exc), "give box=left,top,right,bottom in the image's pixels, "
+                               "around the object") from None
+        framed = frame_object(decoded.rgba, spec, segment, remove_background, foreground_ratio, mask_spec, refine,
+                              region)
         return dataclasses.replace(framed, size=decoded.size)
     except NoObjectError as exc:
-        raise ServiceError("no_object", str(exc), "send a photo where one object stands out from its "
-                       "background, or a PNG with transparency around the object") from None
+        hint = ("draw the box around the object" if str(exc).startswith("the box holds no object") else
+                "send a photo where one object stands out from its background, or a PNG with transparency "
+                "around the object")
+        raise ServiceError("no_object", str(exc), hint) from None
     except ImageError as exc:
         message = str(exc)
         if message.startswith("remove_background=true needs a foreground network"):

@@ -33,14 +33,16 @@ class MeshOptions:
 
 @dataclass(frozen=True)
 class ImageJob:
-    """A photo to a shape: the upload's bytes, how to find the object (``remove_background``) and
-    frame it (``foreground_ratio``), and the mesh options."""
+    """A photo to a shape: the upload's bytes, how to find the object (``remove_background``,
+    ``box``: left, top, right, bottom in the upload's pixels, where to look for it) and frame it
+    (``foreground_ratio``), and the mesh options."""
 
     data: bytes
     mesh: MeshOptions
     timer: StageTimer
     remove_background: str = "auto"
     foreground_ratio: float | None = None
+    box: tuple[int, int, int, int] | None = None
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ import numpy as np
 from PIL import Image
 
 from .decode import MAX_PIXELS_DEFAULT, ImageError, decode_image
-from .mask import MaskSpec, NoObjectError, mask_bounds, object_mask, spec_from_dict
+from .mask import MaskSpec, NoObjectError, mask_bounds, mask_confidence, object_mask, spec_from_dict
 
 
 @dataclass(frozen=True)
@@ -164,7 +164,9 @@ class Framed:
     the whole image was used; ``mask`` (H, W) uint8, the mask applied (None for "none"); ``shape``
     (H, W) of the image framed.  ``size``: the (height, width) of the image as uploaded when the
     image framed was a reduction of it (:func:`decode_photo`; None: the image framed is the
-    upload); :func:`upload_box` and :func:`upload_mask` give them in the upload's pixels."""
+    upload); :func:`upload_box` and :func:`upload_mask` give them in the upload's pixels.
+    ``confidence``: the network mask's certainty at its edge (:func:`model.image.mask.mask_confidence`;
+    None for other sources)."""
 
     image: np.ndarray
     mask_source: str
@@ -172,6 +174,7 @@ class Framed:
     mask: np.ndarray | None
     shape: tuple[int, int]
     size: tuple[int, int] | None = None
+    confidence: float | None = None
 
 
 def upload_box(framed: Framed) -> tuple[int, int, int, int] | None:
@@ -196,7 +199,8 @@ def upload_mask(framed: Framed) -> np.ndarray | None:
 
 
 def frame_object(rgba: np.ndarray, spec: ImageSpec, segment=None, remove_background: str = "auto",
-                 foreground_ratio: float | None = None, mask_spec: MaskSpec = MaskSpec()) -> Framed:
+                 foreground_ratio: float | None = None, mask_spec: MaskSpec = MaskSpec(), refine=None,
+                 region: tuple[int, int, int, int] | None = None) -> Framed:
     """Find the object, cut it out, frame it and make the encoder's input: the one path of photos
     into the image model (training, evaluation, the CLI and the service).
 
@@ -204,38 +208,85 @@ def frame_object(rgba: np.ndarray, spec: ImageSpec, segment=None, remove_backgro
     ``remove_background`` is "false", ``segment`` (a callable from (H, W, 3) uint8 to an object
     probability on a grid over the image, the foreground network) gives it (:func:`object_mask`:
     brought to the image through the guided filter, specks removed, a small object in a large
-    photo segmented again at full resolution; NoObjectError when nothing is found).  The masked
-    object is composited on ``spec.background`` and framed by :func:`prepare_image` (its crop box,
-    a square the object fills ``foreground_ratio`` of, resized).  Without a mask,
-    :func:`prepare_image` alone (an opaque image is cropped by its border colour)."""
+    photo segmented again at full resolution, then ``refine``'s second look at the object's
+    square when given; NoObjectError when nothing is found).  The masked object is composited on
+    ``spec.background`` and framed by :func:`prepare_image` (its crop box, a square the object
+    fills ``foreground_ratio`` of, resized).  Without a mask, :func:`prepare_image` alone (an
+    opaque image is cropped by its border colour).  ``region`` (top, left, bottom, right; a box
+    the user drew): the object is looked for inside it only, and without a mask the region itself
+    is the crop."""
     if remove_background not in REMOVE_BACKGROUND:
         raise ImageError(f"remove_background must be one of {', '.join(REMOVE_BACKGROUND)}, got {remove_background!r}")
     rgba = as_rgba(rgba)
-    has_alpha = int(rgba[..., 3].min()) < 250
-    if has_alpha:
-        peak = int(rgba[..., 3].max())
-        if peak == 0:
-            raise NoObjectError("the image is fully transparent: there is no object to reconstruct")
-        box = object_box(rgba, spec.border_tolerance)
-        if box is None:
-            raise NoObjectError(f"no object found in the image: no pixel is even half opaque (its alpha peaks at "
-                                f"{peak} of 255); send the object opaque on a transparent background")
-        if max(box[2] - box[0], box[3] - box[1]) < MIN_OBJECT_SIDE:
-            raise NoObjectError(f"the object is only {box[3] - box[1]}x{box[2] - box[0]} pixels; send an image "
-                                f"where it is at least {MIN_OBJECT_SIDE} pixels across")
-        return Framed(prepare_image(rgba, spec, foreground_ratio=foreground_ratio, box=box), "alpha", box,
-                      rgba[..., 3].copy(), rgba.shape[:2])
+    if int(rgba[..., 3].min()) < 250:
+        return _frame_alpha(rgba, spec, foreground_ratio, region)
     if remove_background == "false" or segment is None:
         if remove_background == "true":
             raise ImageError("remove_background=true needs a foreground network, and this model has none; "
                              "send an image with transparency around the object")
-        box = object_box(rgba, spec.border_tolerance)
+        box = region or object_box(rgba, spec.border_tolerance)
         return Framed(prepare_image(rgba, spec, foreground_ratio=foreground_ratio, box=box), "none", box, None,
                       rgba.shape[:2])
-    mask = object_mask(rgb_of(rgba), segment, mask_spec)
+    mask = _network_mask(rgb_of(rgba), segment, mask_spec, refine, region)
     alpha = np.clip(np.round(mask * 255), 0, 255).astype(np.uint8)
     box = mask_bounds(alpha >= 128)
     cut = rgba.copy()
     cut[..., 3] = alpha
     image = prepare_image(cut, spec, foreground_ratio=foreground_ratio, box=box)
-    return Framed(image, "network", box, alpha, rgba.shape[:2])
+    return Framed(image, "network", box, alpha, rgba.shape[:2], confidence=mask_confidence(mask))
+
+
+def _frame_alpha(rgba: np.ndarray, spec: ImageSpec, foreground_ratio: float | None,
+                 region: tuple[int, int, int, int] | None) -> Framed:
+    """The framing of an image with transparency: its alpha is the mask (inside ``region`` only)."""
+    if region is not None:
+        rgba = rgba.copy()
+        inside = np.zeros(rgba.shape[:2], bool)
+        inside[region[0]:region[2], region[1]:region[3]] = True
+        rgba[~inside, 3] = 0
+    peak = int(rgba[..., 3].max())
+    if peak == 0:
+        raise NoObjectError("the image is fully transparent" + (" inside the box" if region else "")
+                            + ": there is no object to reconstruct")
+    box = object_box(rgba, spec.border_tolerance)
+    if box is None:
+        raise NoObjectError(f"no object found in the image: no pixel is even half opaque (its alpha peaks at "
+                            f"{peak} of 255); send the object opaque on a transparent background")
+    if max(box[2] - box[0], box[3] - box[1]) < MIN_OBJECT_SIDE:
+        raise NoObjectError(f"the object is only {box[3] - box[1]}x{box[2] - box[0]} pixels; send an image "
+                            f"where it is at least {MIN_OBJECT_SIDE} pixels across")
+    return Framed(prepare_image(rgba, spec, foreground_ratio=foreground_ratio, box=box), "alpha", box,
+                  rgba[..., 3].copy(), rgba.shape[:2])
+
+
+def _network_mask(rgb: np.ndarray, segment, spec: MaskSpec, refine, region: tuple[int, int, int, int] | None
+                  ) -> np.ndarray:
+    """The network's mask of ``rgb`` (:func:`object_mask`), or of ``region`` alone, placed in an
+    image-sized mask (NoObjectError saying that the box holds no object)."""
+    if region is None:
+        return object_mask(rgb, segment, spec, refine)
+    top, left, bottom, right = region
+    try:
+        part = object_mask(np.ascontiguousarray(rgb[top:bottom, left:right]), segment, spec, refine)
+    except NoObjectError as exc:
+        raise NoObjectError(f"the box holds no object ({exc}); draw the box around the object") from None
+    mask = np.zeros(rgb.shape[:2], np.float32)
+    mask[top:bottom, left:right] = part
+    return mask
+
+
+def region_of(box: tuple[int, int, int, int], size: tuple[int, int], shape: tuple[int, int]
+              ) -> tuple[int, int, int, int]:
+    """A box the user drew, (left, top, right, bottom) in the pixels of the image as uploaded
+    (``size``: its height and width), as (top, left, bottom, right) in the pixels of the image
+    worked on (``shape``: a reduction of it, or itself), clipped to the image, grown outward to
+    whole pixels; ImageError when it is empty or lies outside the image."""
+    x0, y0, x1, y1 = box
+    (H, W), (h, w) = size, shape
+    if not (x0 < x1 and y0 < y1):
+        raise ImageError(f"box must be left,top,right,bottom with left < right and top < bottom, got {x0},{y0},{x1},{y1}")
+    if x1 <= 0 or y1 <= 0 or x0 >= W or y0 >= H:
+        raise ImageError(f"box {x0},{y0},{x1},{y1} lies outside the {W}x{H} image")
+    top, left = int(np.floor(max(y0, 0) * h / H)), int(np.floor(max(x0, 0) * w / W))
+    bottom, right = int(np.ceil(min(y1, H) * h / H)), int(np.ceil(min(x1, W) * w / W))
+    return top, left, max(bottom, top + 1), max(right, left + 1)

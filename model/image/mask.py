@@ -261,6 +261,19 @@ def refined_mask(rgb: np.ndarray, first: np.ndarray, refine, spec: MaskSpec) -> 
     return out
 
 
+def mask_confidence(mask: np.ndarray) -> float:
+    """How sure a mask (H, W) in [0, 1] is where it matters, at its edge: the mean of |2 p - 1| over
+    the pixels within a band about the 0.5 boundary (1% of the mask's longest side, at least 2
+    pixels); 1.0 for a crisp mask, near 0 for one that hesitates along its whole outline."""
+    hard = mask > 0.5
+    box = mask_bounds(hard)
+    if box is None:
+        return 0.0
+    reach = max(2, round(0.01 * max(box[2] - box[0], box[3] - box[1])))
+    band = ndimage.binary_dilation(hard, iterations=reach) & ~ndimage.binary_erosion(hard, iterations=reach)
+    return float(np.abs(2 * mask[band] - 1).mean()) if band.any() else 1.0
+
+
 def mask_iou(ours: np.ndarray, truth: np.ndarray) -> float:
     """Intersection over union of two boolean masks (0 when both are empty)."""
     return float((ours & truth).sum() / max(1, (ours | truth).sum()))

@@ -162,8 +162,9 @@ function showHeaders(response) {
   $('s-leaves').textContent = h('X-Octree-Leaves');
   const closed = response.headers.get('X-Mesh-Closed');
   $('s-surface').textContent = `${h('X-Surface')}${closed === 'true' ? ' (closed)' : closed === 'false' ? ' (open)' : ''}`;
-  const box = response.headers.get('X-Crop-Box');
-  $('s-mask').textContent = `${h('X-Mask')}${box ? ` (${box})` : ''}`;
+  const box = response.headers.get('X-Crop-Box');              // left,top,right,bottom
+  const sure = response.headers.get('X-Mask-Confidence');
+  $('s-mask').textContent = `${h('X-Mask')}${box ? ` (box ${box})` : ''}${sure ? `, confidence ${sure}` : ''}`;
   $('s-dropped').textContent = h('X-Points-Dropped');
   $('s-timing').textContent = h('Server-Timing');
 }

@@ -34,12 +34,14 @@ FRAMING_HEADERS = {
     "X-Mask": "where the object's mask came from: alpha (the image's transparency), network (the foreground "
               "network cut the object out of an opaque photo) or none (no mask: an opaque image cropped by its "
               "border colour)",
-    "X-Crop-Box": "top,left,bottom,right (exclusive) of the object's box in the uploaded image's pixels; absent "
-                  "when the whole image was used",
+    "X-Crop-Box": "left,top,right,bottom (x0,y0,x1,y1, exclusive) of the object's box in the uploaded image's "
+                  "pixels; absent when the whole image was used",
+    "X-Mask-Confidence": "how sure the foreground network's mask is at its edge, 0 to 1 (the mean of |2p - 1| "
+                         "about its outline); low: draw a box around the object (box=...); absent for other masks",
     "X-Foreground-Ratio": "the share of the encoder's square the object's longest side filled (3 decimals)"}
 IMAGE_RESPONSE = {200: {"description": "the mesh (headers: X-Surface, X-Mesh-Faces, X-Mesh-Closed, X-Mask, "
-                        "X-Crop-Box, X-Foreground-Ratio); with debug=mask, the mask as an 8-bit greyscale PNG of "
-                        "the image's size (the same X-Mask, X-Crop-Box and X-Foreground-Ratio)",
+                        "X-Crop-Box, X-Mask-Confidence, X-Foreground-Ratio); with debug=mask, the mask as an 8-bit "
+                        "greyscale PNG of the image's size (the same framing headers)",
                         "content": {**{m: {} for m in FORMATS.values()}, "image/png": {}},
                         "headers": {k: {"description": d, "schema": {"type": "string"}}
                                     for k, d in FRAMING_HEADERS.items()}},
@@ -63,6 +65,11 @@ SYMMETRY_Q = Query(True, description="true: when the scan is mirror-symmetric ac
 UP_Q = Query("y", description="the upload's up axis: y (the models' convention, as glTF and ShapeNet) or z (as CAD, "
              "most scanners and ModelNet40); a z-up shape is turned upright for the networks, which know objects "
              "standing on +Y, and a completed shape is turned back, so it comes in the upload's coordinates")
+BOX_Q = Query(None, pattern=r"^-?\d+,-?\d+,-?\d+,-?\d+$", examples=["120,80,520,400"],
+              description="where the object is: left,top,right,bottom (x0,y0,x1,y1) in the uploaded image's pixels, "
+                          "as PIL and SAM-style tools write boxes; the object's mask is searched inside it only (a "
+                          "box partly beyond the image is clipped; 422 invalid_box for one outside it, no_object "
+                          "for one that holds no object); with remove_background=false the box is the crop")
 DEBUG_Q = Query(None, description="mask: answer with the mask the framing used (an 8-bit greyscale PNG of the "
                 "image's size, 255 = object) instead of the mesh; 422 no_mask when there is none")
 
@@ -110,11 +117,15 @@ def mesh_response(mesh: MeshFile, name: str, timer: StageTimer, model: str = "",
 
 
 def framing_headers(framed: Framed, ratio: float) -> dict[str, str]:
-    """X-Mask, X-Crop-Box (when there is a box) and X-Foreground-Ratio of a photo's framing."""
+    """X-Mask, X-Crop-Box (when there is a box; left, top, right, bottom), X-Mask-Confidence (a
+    network's mask) and X-Foreground-Ratio of a photo's framing."""
     headers = {"X-Mask": framed.mask_source, "X-Foreground-Ratio": f"{ratio:.3f}"}
     box = upload_box(framed)
     if box is not None:
-        headers["X-Crop-Box"] = ",".join(str(v) for v in box)
+        top, left, bottom, right = box
+        headers["X-Crop-Box"] = f"{left},{top},{right},{bottom}"
+    if framed.confidence is not None:
+        headers["X-Mask-Confidence"] = f"{framed.confidence:.3f}"
     return headers
 
 
@@ -131,12 +142,14 @@ async def _submit(eng: Engine, task: Task, job):
              summary="A photo of one object -> its 3D shape as a mesh (closed, or the leaf patches)")
 async def image_to_shape(mesh: MESH_Q, image: UploadFile = File(..., description=f"{IMAGE_FORMATS} of one object"),
                          depth: int | None = DEPTH_Q, remove_background: RemoveBackground = REMOVE_BACKGROUND_Q,
-                         foreground_ratio: float | None = FOREGROUND_RATIO_Q, debug: Debug | None = DEBUG_Q,
-                         accept: str | None = Header(None), eng: Engine = Depends(engine)) -> Response:
+                         foreground_ratio: float | None = FOREGROUND_RATIO_Q, box: str | None = BOX_Q,
+                         debug: Debug | None = DEBUG_Q, accept: str | None = Header(None),
+                         eng: Engine = Depends(engine)) -> Response:
     b = eng.model(Task.IMAGE_TO_SHAPE).bundle
     data, _ = await _read(image)
     timer = StageTimer(eng.metrics)
-    job = ImageJob(data, mesh.options(accept, depth), timer, remove_background, foreground_ratio)
+    region = None if box is None else tuple(int(v) for v in box.split(","))
+    job = ImageJob(data, mesh.options(accept, depth), timer, remove_background, foreground_ratio, region)
     ratio = b.image_spec().foreground_ratio if foreground_ratio is None else foreground_ratio
     if debug == "mask":                  # only the framing: no encoder, no decoder
         eng.check_depth(eng.model(Task.IMAGE_TO_SHAPE), depth)

@@ -96,7 +96,9 @@ def stages(r) -> set[str]:
 
 
 def crop_box(r) -> tuple[int, ...]:
-    return tuple(int(v) for v in r.headers["x-crop-box"].split(","))
+    """X-Crop-Box (left, top, right, bottom) as (top, left, bottom, right), the order of true_box."""
+    left, top, right, bottom = (int(v) for v in r.headers["x-crop-box"].split(","))
+    return top, left, bottom, right
 
 
 def test_the_schema_s_choices_are_the_preprocessing_s():
@@ -263,7 +265,7 @@ def test_the_real_foreground_graph_runs(fg_client, foreground_models_dir):
     img, _ = scene(120, 200)
     r = post(fg_client, png(img), debug="mask")
     assert r.status_code == 200, r.text
-    assert r.headers["x-mask"] == "network" and r.headers["x-crop-box"] == "0,0,120,200"
+    assert r.headers["x-mask"] == "network" and r.headers["x-crop-box"] == "0,0,200,120"
     assert "mask" in stages(r)
     got = np.asarray(Image.open(io.BytesIO(r.content)), np.float32)
     runtime = Runtime(load_bundle(foreground_models_dir / "image-to-shape"), threads=1)
@@ -305,3 +307,48 @@ def test_a_large_photo_is_worked_on_reduced_and_answered_in_its_own_pixels(fg_cl
     assert m.shape == (1600, 2400)
     big_mask = np.asarray(Image.fromarray(mask).resize((2400, 1600), Image.Resampling.NEAREST))
     assert (m & big_mask).sum() / (m | big_mask).sum() > 0.97
+
+
+def test_a_box_prompt_looks_for_the_object_inside_it_only(fg_client, segment_calls):
+    """box=left,top,right,bottom: the mask is the object inside the box (a second object outside
+    it is not taken), X-Crop-Box says the object's box in the same order, and the mask's
+    confidence is reported."""
+    img, mask = scene(160, 240, box=(40, 30, 110, 100))
+    second, other = scene(160, 240, box=(50, 150, 120, 220), seed=1)
+    img[other] = second[other]                                 # another object to the right
+    r = post(fg_client, png(img), debug="mask", box="20,20,120,130")
+    assert r.status_code == 200, r.text
+    got = np.asarray(Image.open(io.BytesIO(r.content))) > 127
+    assert got[other].mean() == 0 and got[mask].mean() > 0.95
+    assert np.abs(np.subtract(crop_box(r), true_box(mask))).max() <= 2
+    assert 0 <= float(r.headers["x-mask-confidence"]) <= 1
+    assert segment_calls[0].shape[:2] == (130 - 20, 120 - 20)  # the box (rows, columns), not the photo
+    whole = post(fg_client, png(img), debug="mask")             # without the box: both objects
+    both = np.asarray(Image.open(io.BytesIO(whole.content))) > 127
+    assert both[other].mean() > 0.95
+
+
+def test_bad_boxes_get_a_clear_422(fg_client, segment_calls):
+    img, _ = scene(160, 200)
+    r = post(fg_client, png(img), box="0,0,60,30")             # background only: above the object
+    assert r.status_code == 422 and r.json()["error"]["code"] == "no_object"
+    assert "the box holds no object" in r.json()["error"]["message"]
+    assert "box" in r.json()["error"]["hint"]
+    for box, code in (("300,300,400,400", "invalid_box"), ("50,50,10,10", "invalid_box"),
+                      ("1,2,3", "invalid_request"), ("a,b,c,d", "invalid_request")):
+        r = post(fg_client, png(img), box=box)
+        assert r.status_code == 422 and r.json()["error"]["code"] == code, (box, r.text)
+    clipped = post(fg_client, png(img), box="-50,-50,500,500", debug="mask")   # beyond the image: clipped
+    assert clipped.status_code == 200, clipped.text
+
+
+def test_a_box_without_background_removal_is_the_crop_and_alpha_still_wins(fg_client, segment_calls, encoder_inputs):
+    img, mask = scene(160, 200)
+    r = post(fg_client, png(img), remove_background="false", box="80,30,180,120")
+    assert r.status_code == 200, r.text
+    assert r.headers["x-mask"] == "none" and r.headers["x-crop-box"] == "80,30,180,120" and not segment_calls
+    assert "x-mask-confidence" not in r.headers
+    rgba = np.dstack([img, np.where(mask, 255, 0).astype(np.uint8)])
+    r = post(fg_client, png(rgba), box="0,0,200,160")
+    assert r.status_code == 200 and r.headers["x-mask"] == "alpha" and not segment_calls
+    assert np.abs(np.subtract(crop_box(r), true_box(mask))).max() <= 1
