@@ -13,6 +13,7 @@ const TASKS = {   // radio value -> endpoint, multipart field, served model task
 
 const $ = (id) => document.getElementById(id);
 const state = { input: null, last: null, served: null };
+const photo = { image: null, box: null, mask: null, drag: null };   // the chosen photo, its box and mask
 const demo = { loads: 0, last: null, errors: 0 };     // read by the browser test
 window.aocnnDemo = demo;
 
@@ -32,6 +33,7 @@ function onTaskChange() {
     status('');
   }
   $('run').disabled = !state.input;
+  $('photo-box').hidden = task() !== 'image-to-shape' || !photo.image;
 }
 
 function status(text, error = false) {
@@ -44,6 +46,101 @@ function choose(blob, name, button = null) {
   $('chosen').textContent = `chosen: ${name} (${(blob.size / 1024).toFixed(1)} KiB)`;
   document.querySelectorAll('#examples button').forEach((b) => b.classList.toggle('chosen', b === button));
   $('run').disabled = false;
+  showPhoto(blob);
+}
+
+// The photo, a box the user drags on it (in the image's pixels: left, top, right, bottom, as the
+// API takes it), and the mask the service used, drawn over the photo before the shape comes.
+async function showPhoto(blob) {
+  Object.assign(photo, { image: null, box: null, mask: null, drag: null });
+  $('photo-box').hidden = true;
+  $('clear-box').disabled = true;
+  if (task() !== 'image-to-shape') return;
+  try {
+    photo.image = await createImageBitmap(blob);
+  } catch {
+    return;                                   // a format the browser cannot draw (HEIC): no preview, no box
+  }
+  const canvas = $('photo');
+  canvas.width = photo.image.width;
+  canvas.height = photo.image.height;
+  $('photo-box').hidden = false;
+  $('box-text').textContent = 'drag on the photo to box the object (optional)';
+  drawPhoto();
+}
+
+function drawPhoto() {
+  const ctx = $('photo').getContext('2d');
+  ctx.globalCompositeOperation = 'source-over';
+  ctx.globalAlpha = 1;
+  ctx.drawImage(photo.image, 0, 0);
+  if (photo.mask) {                           // the object kept, the background darkened
+    ctx.globalCompositeOperation = 'multiply';
+    ctx.globalAlpha = 0.6;
+    ctx.drawImage(photo.mask, 0, 0, photo.image.width, photo.image.height);
+    ctx.globalCompositeOperation = 'source-over';
+    ctx.globalAlpha = 1;
+  }
+  const b = photo.drag || photo.box;
+  if (b) {
+    ctx.lineWidth = Math.max(2, photo.image.width / 200);
+    ctx.strokeStyle = '#ff3b30';
+    ctx.strokeRect(b[0], b[1], b[2] - b[0], b[3] - b[1]);
+  }
+}
+
+function imagePoint(event) {
+  const r = $('photo').getBoundingClientRect();
+  const x = Math.round(((event.clientX - r.left) / r.width) * photo.image.width);
+  const y = Math.round(((event.clientY - r.top) / r.height) * photo.image.height);
+  return [Math.min(Math.max(x, 0), photo.image.width), Math.min(Math.max(y, 0), photo.image.height)];
+}
+
+function ordered(a, b) {
+  return [Math.min(a[0], b[0]), Math.min(a[1], b[1]), Math.max(a[0], b[0]), Math.max(a[1], b[1])];
+}
+
+function startBox(event) {
+  if (!photo.image) return;
+  const p = imagePoint(event);
+  photo.start = p;
+  photo.drag = [p[0], p[1], p[0], p[1]];
+  $('photo').setPointerCapture(event.pointerId);
+}
+
+function moveBox(event) {
+  if (!photo.drag) return;
+  photo.drag = ordered(photo.start, imagePoint(event));
+  drawPhoto();
+}
+
+function endBox() {
+  if (!photo.drag) return;
+  const b = photo.drag;
+  photo.drag = null;
+  if (b[2] - b[0] >= 4 && b[3] - b[1] >= 4) {   // a click is not a box
+    photo.box = b;
+    photo.mask = null;
+    $('box-text').textContent = `box ${b.join(',')} (left, top, right, bottom)`;
+    $('clear-box').disabled = false;
+  }
+  drawPhoto();
+}
+
+function clearBox() {
+  photo.box = null;
+  photo.mask = null;
+  $('clear-box').disabled = true;
+  $('box-text').textContent = 'drag on the photo to box the object (optional)';
+  if (photo.image) drawPhoto();
+}
+
+async function showMask(request) {
+  const response = await fetch(`${requestUrl(request.endpoint, null)}&debug=mask`,
+    { method: 'POST', body: formOf(request), headers: headers() });
+  if (!response.ok) return;                   // no mask (alpha-less without a network): the shape still comes
+  photo.mask = await createImageBitmap(await response.blob());
+  drawPhoto();
 }
 
 function headers() {
@@ -105,6 +202,7 @@ function requestUrl(endpoint, format) {
     if ($('color').checked) q.set('color_by_depth', 'true');
     q.set('surface', $('surface').value);
     if (endpoint === 'image-to-shape') q.set('remove_background', $('remove-background').value);
+    if (endpoint === 'image-to-shape' && photo.box) q.set('box', photo.box.join(','));
     if (format) q.set('format', format);
   }
   if ((endpoint === 'complete' || endpoint === 'classify') && $('up').value !== 'y') q.set('up', $('up').value);
@@ -112,10 +210,14 @@ function requestUrl(endpoint, format) {
   return `v1/${endpoint}${s ? `?${s}` : ''}`;
 }
 
-async function post(request, format = null) {
+function formOf(request) {
   const body = new FormData();
   body.append(request.field, request.blob, request.name);
-  return fetch(requestUrl(request.endpoint, format), { method: 'POST', body, headers: headers() });
+  return body;
+}
+
+async function post(request, format = null) {
+  return fetch(requestUrl(request.endpoint, format), { method: 'POST', body: formOf(request), headers: headers() });
 }
 
 async function run() {
@@ -126,6 +228,7 @@ async function run() {
   status(`posting ${request.name} to /v1/${endpoint}…`);
   const started = performance.now();
   try {
+    if (endpoint === 'image-to-shape' && photo.image) await showMask(request);
     const response = await post(request);
     const seconds = ((performance.now() - started) / 1000).toFixed(2);
     if (!response.ok) {
@@ -309,6 +412,10 @@ const viewer = {
 document.querySelectorAll('input[name=task]').forEach((r) => r.addEventListener('change', onTaskChange));
 $('file').addEventListener('change', (e) => { if (e.target.files[0]) choose(e.target.files[0], e.target.files[0].name); });
 $('run').addEventListener('click', run);
+$('photo').addEventListener('pointerdown', startBox);
+$('photo').addEventListener('pointermove', moveBox);
+$('photo').addEventListener('pointerup', endBox);
+$('clear-box').addEventListener('click', clearBox);
 $('key').addEventListener('change', loadModels);
 document.querySelectorAll('#downloads button').forEach((b) => b.addEventListener('click', () => download(b.dataset.format)));
 loadModels();

@@ -65,6 +65,22 @@ def test_demo_page_in_chromium(browser, server, tmp_path):
     else:
         assert "empty_output" in photo["status"], photo["status"]
 
+    # the photo is shown; a box dragged on it goes with the next request, whose mask is drawn first
+    assert page.is_visible("#photo")
+    requests = []
+    page.on("request", lambda r: requests.append(r.url))
+    area = page.locator("#photo").bounding_box()
+    page.mouse.move(area["x"] + 0.2 * area["width"], area["y"] + 0.2 * area["height"])
+    page.mouse.down()
+    page.mouse.move(area["x"] + 0.8 * area["width"], area["y"] + 0.9 * area["height"], steps=5)
+    page.mouse.up()
+    assert page.inner_text("#box-text").startswith("box ") and page.is_enabled("#clear-box")
+    before = page.evaluate("() => window.aocnnDemo.loads + window.aocnnDemo.errors")
+    page.click("#run")
+    page.wait_for_function(f"() => window.aocnnDemo.loads + window.aocnnDemo.errors > {before}", timeout=120_000)
+    posts = [u for u in requests if "/v1/image-to-shape" in u]
+    assert "debug=mask" in posts[0] and all("box=" in u for u in posts), posts
+
     # a shape's adaptive octree: always a real mesh
     shape = run_example(page, "airplane.obj")
     assert shape["loaded"], shape["status"]
