@@ -59,12 +59,7 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
     ``timings`` receives seconds per build stage.
     """
     timer = StageTimes(timings)
-    if not isinstance(depth, (int, np.integer)) or not 1 <= depth <= MAX_BUILD_DEPTH:
-        raise OctreeInputError(f"depth must be an integer in [1, {MAX_BUILD_DEPTH}], got {depth!r}")
-    if not 0 <= full_depth <= depth or adaptive_depth < full_depth:
-        raise OctreeInputError("need 0 <= full_depth <= depth and adaptive_depth >= full_depth")
-    if not np.isfinite(threshold) or threshold <= 0:
-        raise OctreeInputError(f"threshold must be a positive number of voxels, got {threshold!r}")
+    _check_settings(depth, full_depth, adaptive_depth, threshold)
     if not isinstance(cloud, PointCloud):
         cloud = validate(*cloud)
     norm = normalization_of(cloud.points) if normalization is None else normalization
@@ -77,72 +72,25 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
         pts, nrm, key = _sorted_points(cube, normals, depth)
     with timer("moments"):
         moments = _aggregate(pts, nrm, key, depth)
-
     settings = None
     if adaptive or measure_leaves:
         with timer("spacing"):
             spacing = (sample_spacing / norm.scale if sample_spacing is not None
                        else _estimate_spacing(pts.T))
-        settings = PatchErrorSettings(threshold=threshold * h_fine, gap=spacing,
-                                      probe_spacing=h_fine)
+        settings = PatchErrorSettings(threshold=threshold * h_fine, gap=spacing, probe_spacing=h_fine)
+    rule = _SplitRule(depth, full_depth, adaptive_depth, adaptive, measure_leaves, certify, settings)
 
     levels: list[OctreeLevel] = []
     node_key = np.zeros(1, dtype=np.uint64)
     node_ne = np.zeros(1, dtype=np.int64)          # index into moments[l], -1 for empty nodes
     parent = np.full(1, -1, dtype=np.int32)
     for lv in range(depth + 1):
-        mom = moments[lv]
-        n = len(node_key)
-        nonempty = node_ne >= 0
-        ne = node_ne[nonempty]
-        size = 1.0 / (1 << lv)
-        plane = np.zeros((n, 4), dtype=np.float32)
-        error = np.full(n, np.nan, dtype=np.float32)
-        npts = np.zeros(n, dtype=np.int32)
-        npts[nonempty] = mom.count[ne]
-        with timer("planes"):
-            # every non-empty octant of the depth, in key order: the moments as they are
-            sums = mom.sums if len(ne) == len(mom.key) else np.take(mom.sums, ne, axis=1)
-            normal, centroid, _ = fit_planes(mom.count[ne], sums[:3], sums[3:9], sums[9:])
-            centre = (morton.decode(node_key[nonempty])[0] + 0.5) * size
-            offset = (normal * (centre - (centroid + 0.5))).sum(1)
-            plane[nonempty, :3] = normal
-            plane[nonempty, 3] = offset / (PLANE_SCALE * size)
-
-        label = np.full(n, EMPTY, dtype=np.int8)
-        if lv < full_depth:
-            split = np.ones(n, dtype=bool)
-        elif lv == depth:
-            split = np.zeros(n, dtype=bool)
-        elif lv < adaptive_depth or not adaptive:
-            split = nonempty.copy()
-        else:
-            err = patch_errors(pts, nrm, settings, centre, normal, offset, size,
-                               mom.start[ne], mom.count[ne], exact=False,
-                               certify=certify, timer=timer)
-            error[nonempty] = err
-            split = nonempty.copy()
-            split[nonempty] = err > settings.threshold
-        label[nonempty] = LEAF
-        label[split] = SPLIT
-        if measure_leaves:
-            # Leaves not measured to decide a split (full trees, the max depth) are measured here.
-            sel = np.flatnonzero(np.isnan(error[nonempty]) & (label[nonempty] == LEAF))
-            if len(sel):
-                error[np.flatnonzero(nonempty)[sel]] = patch_errors(
-                    pts, nrm, settings, centre[sel], normal[sel], offset[sel], size,
-                    mom.start[ne[sel]], mom.count[ne[sel]], exact=True,
-                    certify=certify, timer=timer)
-
+        level, split_idx = _level(lv, node_key, node_ne, parent, moments[lv], pts, nrm, rule, timer)
+        levels.append(level)
+        if lv == depth:
+            break
         with timer("structure"):
-            child = np.full(n, -1, dtype=np.int32)
-            split_idx = np.flatnonzero(split)
-            child[split_idx] = np.arange(len(split_idx), dtype=np.int32)
-            levels.append(OctreeLevel(depth=lv, key=node_key, label=label, child=child,
-                                      parent=parent, plane=plane, error=error, npoints=npts))
-            if lv == depth:
-                break
-            node_key, node_ne = _children(node_key, node_ne, split_idx, mom, moments[lv + 1])
+            node_key, node_ne = _children(node_key, node_ne, split_idx, moments[lv], moments[lv + 1])
             parent = np.repeat(split_idx.astype(np.int32), 8)
 
     octree = Octree(depth=depth, levels=levels, adaptive=adaptive,
@@ -152,6 +100,81 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
         with timer("neighbors"):
             build_neighbors(octree)
     return octree
+
+
+def _check_settings(depth, full_depth: int, adaptive_depth: int, threshold: float) -> None:
+    if not isinstance(depth, (int, np.integer)) or not 1 <= depth <= MAX_BUILD_DEPTH:
+        raise OctreeInputError(f"depth must be an integer in [1, {MAX_BUILD_DEPTH}], got {depth!r}")
+    if not 0 <= full_depth <= depth or adaptive_depth < full_depth:
+        raise OctreeInputError("need 0 <= full_depth <= depth and adaptive_depth >= full_depth")
+    if not np.isfinite(threshold) or threshold <= 0:
+        raise OctreeInputError(f"threshold must be a positive number of voxels, got {threshold!r}")
+
+
+@dataclass(frozen=True)
+class _SplitRule:
+    """Which octants a build splits: all above ``full_depth``, none at ``depth``, every non-empty
+    one above ``adaptive_depth`` (or in a full octree), else those whose patch error exceeds the
+    threshold of ``settings``; ``measure_leaves``: leaves not measured to decide are measured."""
+
+    depth: int
+    full_depth: int
+    adaptive_depth: int
+    adaptive: bool
+    measure_leaves: bool
+    certify: bool
+    settings: PatchErrorSettings | None
+
+
+def _level(lv: int, node_key: np.ndarray, node_ne: np.ndarray, parent: np.ndarray, mom: _Moments, pts: np.ndarray,
+           nrm: np.ndarray, rule: _SplitRule, timer: StageTimes) -> tuple[OctreeLevel, np.ndarray]:
+    """One depth of the build: every octant's plane fitted from its points' moments, its patch
+    error measured where the rule needs it, its label; and the octants split (indices)."""
+    n = len(node_key)
+    nonempty = node_ne >= 0
+    ne = node_ne[nonempty]
+    size = 1.0 / (1 << lv)
+    plane = np.zeros((n, 4), dtype=np.float32)
+    error = np.full(n, np.nan, dtype=np.float32)
+    npts = np.zeros(n, dtype=np.int32)
+    npts[nonempty] = mom.count[ne]
+    with timer("planes"):
+        # every non-empty octant of the depth, in key order: the moments as they are
+        sums = mom.sums if len(ne) == len(mom.key) else np.take(mom.sums, ne, axis=1)
+        normal, centroid, _ = fit_planes(mom.count[ne], sums[:3], sums[3:9], sums[9:])
+        centre = (morton.decode(node_key[nonempty])[0] + 0.5) * size
+        offset = (normal * (centre - (centroid + 0.5))).sum(1)
+        plane[nonempty, :3] = normal
+        plane[nonempty, 3] = offset / (PLANE_SCALE * size)
+    if lv < rule.full_depth:
+        split = np.ones(n, dtype=bool)
+    elif lv == rule.depth:
+        split = np.zeros(n, dtype=bool)
+    elif lv < rule.adaptive_depth or not rule.adaptive:
+        split = nonempty.copy()
+    else:
+        err = patch_errors(pts, nrm, rule.settings, centre, normal, offset, size, mom.start[ne], mom.count[ne],
+                           exact=False, certify=rule.certify, timer=timer)
+        error[nonempty] = err
+        split = nonempty.copy()
+        split[nonempty] = err > rule.settings.threshold
+    label = np.full(n, EMPTY, dtype=np.int8)
+    label[nonempty] = LEAF
+    label[split] = SPLIT
+    if rule.measure_leaves:
+        # Leaves not measured to decide a split (full trees, the max depth) are measured here.
+        sel = np.flatnonzero(np.isnan(error[nonempty]) & (label[nonempty] == LEAF))
+        if len(sel):
+            error[np.flatnonzero(nonempty)[sel]] = patch_errors(
+                pts, nrm, rule.settings, centre[sel], normal[sel], offset[sel], size,
+                mom.start[ne[sel]], mom.count[ne[sel]], exact=True, certify=rule.certify, timer=timer)
+    with timer("structure"):
+        child = np.full(n, -1, dtype=np.int32)
+        split_idx = np.flatnonzero(split)
+        child[split_idx] = np.arange(len(split_idx), dtype=np.int32)
+        level = OctreeLevel(depth=lv, key=node_key, label=label, child=child, parent=parent, plane=plane,
+                            error=error, npoints=npts)
+    return level, split_idx
 
 
 def _inside(cube: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -56,46 +56,22 @@ def patch_errors(pts: np.ndarray, nrm: np.ndarray, cfg: PatchErrorSettings, cent
     with timer("patch polygons"):
         verts, nvert = cube_polygons(normal, offset, size)
     with timer("error surface->patch"):
-        idx = concat_ranges(start, count)
-        whole = len(idx) == pts.shape[1]          # every point, in order: no gather needed
-        nx, ny, nz, cx, cy, cz, off = (np.repeat(c, count) for c in (*normal.T, *centre.T, offset))
-        local = [(pts[c] if whole else pts[c][idx]) - cc for c, cc in enumerate((cx, cy, cz))]
-        s = local[0] * nx + local[1] * ny
-        s += local[2] * nz
-        s += off
-        dist = np.abs(s)
-        lim = size * (0.5 + 1e-9)
-        outside = np.zeros(len(s), dtype=bool)
-        for lc, nc in zip(local, (nx, ny, nz)):
-            outside |= np.abs(lc - s * nc) > lim
-        o = np.flatnonzero(outside)
-        if len(o):
-            oo = owner[o]
-            dist[o] = polygon_distance(np.stack([lc[o] for lc in local], axis=1), normal[oo],
-                                       offset[oo], verts[oo])
-        # Each sample stands for the surface within the sampling gap around it: extrapolate its
-        # distance along its own tangent plane, which leaves the patch at angle theta.
-        nn = [nrm[c] if whole else nrm[c][idx] for c in range(3)]
-        cos = nn[0] * nx + nn[1] * ny
-        cos += nn[2] * nz
-        dist += cfg.gap * np.sqrt(np.maximum(1.0 - cos * cos, 0.0))
-        err = np.maximum.reduceat(dist, np.cumsum(count) - count)
+        err, local, s, idx = _surface_to_patch(pts, nrm, cfg, centre, normal, offset, size, start, count, owner, verts)
     todo = np.arange(m) if exact else np.flatnonzero(err <= cfg.threshold)
     if len(todo) == 0:
         return err
     with timer("probes"):
         spacing = max(cfg.probe_spacing, size / 32.0)
         probes = patch_probes(normal[todo], offset[todo], verts[todo], nvert[todo], size, spacing)
-        grid_patch, edge_patch = probes.grid_patch, probes.edge_patch
-        n_probes = (np.bincount(grid_patch, minlength=len(todo))
-                    + np.bincount(edge_patch, minlength=len(todo)))
+        n_probes = (np.bincount(probes.grid_patch, minlength=len(todo))
+                    + np.bincount(probes.edge_patch, minlength=len(todo)))
         # Random samples leave gaps: among K probes over true surface the farthest sees its
         # nearest sample about spacing * sqrt(ln K / pi) away (Poisson statistics); the gap
         # tolerance is that distance at its 99% quantile for each octant's probe count.
         tol0 = cfg.gap * np.sqrt(np.log(100.0 * np.maximum(n_probes, 1)) / np.pi)
         # Boundary probes lie on the cube's faces (distance 0 to the boundary, exactly).
         edge_tol0 = _probe_tol(tol0, np.zeros(len(todo)))
-    grid_open, edge_open = np.arange(len(grid_patch)), np.arange(len(edge_patch))
+    grid_open, edge_open = np.arange(len(probes.grid_patch)), np.arange(len(probes.edge_patch))
     # Cells about half the gap tolerance wide let a 5x5 window reach the points that cover a
     # probe; far denser clouds than the probe grid (tolerance below a quarter cell) skip this.
     step, typical = probes.g[1] - probes.g[0], float(np.median(tol0))
@@ -105,23 +81,60 @@ def patch_errors(pts: np.ndarray, nrm: np.ndarray, cfg: PatchErrorSettings, cent
             bins = _PatchBins.of(probes, todo, owner, local, s, m, scale)
             grid_open, edge_open = _unsettled(probes, bins, tol0, edge_tol0, normal[todo], size)
     with timer("probes in k-d tree"):
-        patch = grid_patch[grid_open]
-        gpts = probes.grid_points(grid_open)
-        gtol = _probe_tol(tol0[patch], boundary_distance(gpts, normal[todo][patch], size))
-        patch = np.concatenate([patch, edge_patch[edge_open]])
-        tol = np.concatenate([gtol, edge_tol0[edge_patch[edge_open]]])
-        query = np.concatenate([gpts, probes.edge_points(edge_open)], axis=1)
-        if len(patch):
-            for c in range(3):
-                query[c] += centre[todo, c][patch]
-            oct_id = todo[patch]
-            # probes farther than the largest tolerance's bound split their octant anyway
-            bound = np.inf if exact else float(np.hypot(cfg.threshold, edge_tol0.max()))
-            d = _nearest_in_octant(pts, idx, owner, query, oct_id, bound)
-            # Removing the tolerance in quadrature forgives gaps without hiding real overhangs.
-            ps = np.sqrt(np.maximum(d * d - tol * tol, 0.0))
-            np.maximum.at(err, oct_id, ps)
+        bound = np.inf if exact else float(np.hypot(cfg.threshold, edge_tol0.max()))
+        _probes_in_tree(err, pts, idx, owner, probes, todo, grid_open, edge_open, tol0, edge_tol0, centre,
+                        normal, size, bound)
     return err
+
+
+def _surface_to_patch(pts, nrm, cfg: PatchErrorSettings, centre, normal, offset, size: float, start, count, owner,
+                      verts):
+    """surface->patch of every octant (its points' largest distance to its polygon, each point's
+    sampling gap extrapolated along its own tangent plane), and what the probes reuse: the points
+    in their octants' local frames, their signed distances to the planes, their column indices."""
+    idx = concat_ranges(start, count)
+    whole = len(idx) == pts.shape[1]          # every point, in order: no gather needed
+    nx, ny, nz, cx, cy, cz, off = (np.repeat(c, count) for c in (*normal.T, *centre.T, offset))
+    local = [(pts[c] if whole else pts[c][idx]) - cc for c, cc in enumerate((cx, cy, cz))]
+    s = local[0] * nx + local[1] * ny
+    s += local[2] * nz
+    s += off
+    dist = np.abs(s)
+    lim = size * (0.5 + 1e-9)
+    outside = np.zeros(len(s), dtype=bool)
+    for lc, nc in zip(local, (nx, ny, nz)):
+        outside |= np.abs(lc - s * nc) > lim
+    o = np.flatnonzero(outside)
+    if len(o):
+        oo = owner[o]
+        dist[o] = polygon_distance(np.stack([lc[o] for lc in local], axis=1), normal[oo], offset[oo], verts[oo])
+    # Each sample stands for the surface within the sampling gap around it: extrapolate its
+    # distance along its own tangent plane, which leaves the patch at angle theta.
+    nn = [nrm[c] if whole else nrm[c][idx] for c in range(3)]
+    cos = nn[0] * nx + nn[1] * ny
+    cos += nn[2] * nz
+    dist += cfg.gap * np.sqrt(np.maximum(1.0 - cos * cos, 0.0))
+    return np.maximum.reduceat(dist, np.cumsum(count) - count), local, s, idx
+
+
+def _probes_in_tree(err, pts, idx, owner, probes: PatchProbes, todo, grid_open, edge_open, tol0, edge_tol0, centre,
+                    normal, size: float, bound: float) -> None:
+    """patch->surface of the probes not settled on the patch grid, by the k-d tree of each
+    octant's points, folded into ``err`` (probes farther than ``bound`` read infinite)."""
+    patch = probes.grid_patch[grid_open]
+    gpts = probes.grid_points(grid_open)
+    gtol = _probe_tol(tol0[patch], boundary_distance(gpts, normal[todo][patch], size))
+    patch = np.concatenate([patch, probes.edge_patch[edge_open]])
+    tol = np.concatenate([gtol, edge_tol0[probes.edge_patch[edge_open]]])
+    query = np.concatenate([gpts, probes.edge_points(edge_open)], axis=1)
+    if len(patch):
+        for c in range(3):
+            query[c] += centre[todo, c][patch]
+        oct_id = todo[patch]
+        d = _nearest_in_octant(pts, idx, owner, query, oct_id, bound)
+        # Removing the tolerance in quadrature forgives gaps without hiding real overhangs.
+        ps = np.sqrt(np.maximum(d * d - tol * tol, 0.0))
+        np.maximum.at(err, oct_id, ps)
 
 
 def _unsettled(probes: PatchProbes, bins: "_PatchBins", tol0: np.ndarray, edge_tol0: np.ndarray,
