@@ -78,6 +78,11 @@ def verify(path: str) -> dict:
         if mask.shape != (side, side) or not np.isfinite(mask).all():
             raise BundleError(f"{path}: the foreground network gives a {mask.shape} mask, not its {side}x{side} grid")
         summary["foreground"] = True
+        if runtime.has_refine:
+            size = bundle.mask_spec().crop_size
+            p = runtime.refine(np.zeros((4, size, size), np.float32))
+            if p.shape != (size, size) or not np.isfinite(p).all():
+                raise BundleError(f"{path}: the refinement network gives a {p.shape} mask, not its {size}x{size} grid")
     if "classifier_head" in bundle.graphs:
         p = runtime.classify(latent)
         if p.shape != (PROBES, len(bundle.categories)) or np.abs(p.sum(1) - 1).max() > 1e-4:
@@ -132,6 +137,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--foreground", default=None, metavar="FG",
                     help="image models: a foreground network's checkpoint or run folder, put in the bundle to "
                          "remove photos' backgrounds (python -m model.train foreground)")
+    ap.add_argument("--refine", default=None, metavar="R",
+                    help="image models, with --foreground: a refinement network's checkpoint or run folder (python -m "
+                         "model.train refine), a second look at the object's square at its own resolution")
     ap.add_argument("--foreground-precision", choices=("int8", "float32"), default="int8",
                     help="how the foreground network is stored: int8, statically quantised with generated photos "
                          "(default; 2.1x faster, the same mask IoU), or float32 as trained")
@@ -158,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.error("SOURCE and --out are required (or --verify BUNDLE_DIR)")
         from .exporter import export  # deferred: torch (see verify_against)
         meta = export(args.source, args.out, name=args.name, force=args.force, foreground=args.foreground,
-                      foreground_precision=args.foreground_precision)
+                      foreground_precision=args.foreground_precision, refine=args.refine)
         print(f"{args.out}: {meta['task']} {meta['name']} {meta['version']}, {len(meta['graphs'])} graphs; "
               f"onnxruntime vs torch: {_agreement(meta['export']['self_check'])}")
         return 0

@@ -116,7 +116,11 @@ class Bundle:
         fg = self.input.get("foreground")
         if "foreground" not in self.graphs or not isinstance(fg, dict):
             return None
-        return MaskSpec.from_dict(fg)
+        spec = MaskSpec.from_dict(fg)
+        if spec.crop_size and "foreground_refine" not in self.graphs:
+            raise BundleError(f"{self.path}: model.json gives the refinement's crop_size, but the bundle has no "
+                              "foreground_refine graph")
+        return spec
 
     def checksums(self) -> dict[str, str]:
         return {g.file: g.sha256 for g in self.graphs.values()}

@@ -24,7 +24,7 @@ from model.checkpoint import Loaded, load_model
 from model.data.photos import generated_photos
 from model.data.shapes import CATEGORIES
 from model.files import UMASK, json_text, sha256_file, write_atomic
-from model.image.mask import MaskSpec, mask_input
+from model.image.mask import MaskSpec, NoObjectError, crop_input, mask_bounds, mask_input, mask_output, object_mask, object_square
 from model.networks import ARCHS, CLASSIFIER_ARCHS, OctreeDecoder, TorchSteps
 from model.nn.tensors import OctreeTensors
 from model.octree import DEFAULT_THRESHOLD
@@ -93,12 +93,16 @@ def load_foreground(path: str | Path) -> Loaded:
     return fg
 
 
-def _io_spec(src: Loaded, task: str, foreground: Loaded | None = None) -> tuple[dict, dict]:
+def _io_spec(src: Loaded, task: str, foreground: Loaded | None = None, refine: Loaded | None = None
+             ) -> tuple[dict, dict]:
     if task == Task.IMAGE_TO_SHAPE:
         spec = src.config.image_spec()
         inp = {"kind": "image", "image": dataclasses.asdict(spec)}
         if foreground is not None:
-            inp["foreground"] = TASKS["foreground"].spec(foreground.config, foreground.meta).to_dict()
+            mask = TASKS["foreground"].spec(foreground.config, foreground.meta)
+            if refine is not None:
+                mask = dataclasses.replace(mask, crop_size=refine.config.image_size)
+            inp["foreground"] = mask.to_dict()
     else:
         inp = {"kind": "points", "points": {**POINT_LIMITS, "normals": "estimated when absent"}}
         if task == Task.COMPLETION:
@@ -154,33 +158,89 @@ def foreground_photos(size: int, seed: int = 0) -> tuple[list[np.ndarray], list[
     return inputs[::2], inputs[1::2]
 
 
-def foreground_check(runtime: Runtime, foreground: Loaded, photos: list[np.ndarray], precision: str) -> dict:
+def foreground_check(runtime: Runtime, foreground: Loaded, photos: list[np.ndarray], precision: str,
+                     graph: str = "foreground") -> dict:
     """onnxruntime's and torch's foreground logits of ``photos`` (network inputs): raise BundleError
     if they disagree beyond the ``precision``'s allowance.  float32: within
     :data:`export.parity.RELATIVE_TOLERANCE` of the logits' magnitude.  int8: compared with torch's
     logits clipped to the range the int8 output can hold, in units of its quantisation step
     (:func:`export.quantize.output_range`): the 99th percentile within
     :data:`FOREGROUND_INT8_STEPS`, and the mask (logit > 0) the same on
-    :data:`FOREGROUND_INT8_AGREEMENT` of the pixels."""
-    ours = np.concatenate([runtime.run("foreground", {"image": x})[0] for x in photos])
+    :data:`FOREGROUND_INT8_AGREEMENT` of the pixels.  ``graph``: the foreground graph checked
+    (``foreground_refine``: the refinement network, its figures' keys prefixed ``refine_``)."""
+    ours = np.concatenate([runtime.run(graph, {"image": x})[0] for x in photos])
     with torch.no_grad():
         theirs = foreground.model.net(torch.from_numpy(np.concatenate(photos))).numpy()
     agree = float(np.mean((ours > 0) == (theirs > 0)))
-    out = {"foreground_pixel_agreement": agree}
+    key = "foreground" if graph == "foreground" else "refine"
+    out = {f"{key}_pixel_agreement": agree}
     if precision == "float32":
-        out["foreground_relative_error"] = error = relative_error(theirs, ours)
+        out[f"{key}_relative_error"] = error = relative_error(theirs, ours)
         if not error <= RELATIVE_TOLERANCE:
-            raise BundleError(f"onnxruntime and torch foreground logits differ by {error:.2e} of their magnitude "
+            raise BundleError(f"onnxruntime and torch {graph} logits differ by {error:.2e} of their magnitude "
                               f"(tolerance {RELATIVE_TOLERANCE:.0e})")
         return out
-    step, lo, hi = output_range(runtime.bundle.file("foreground").read_bytes(), "logits")
+    step, lo, hi = output_range(runtime.bundle.file(graph).read_bytes(), "logits")
     steps = float(np.quantile(np.abs(ours - np.clip(theirs, lo, hi)), 0.99) / step)
-    out.update(foreground_int8_steps_p99=steps, foreground_output_step=step)
+    out.update({f"{key}_int8_steps_p99": steps, f"{key}_output_step": step})
     if agree < FOREGROUND_INT8_AGREEMENT or steps > FOREGROUND_INT8_STEPS:
-        raise BundleError(f"onnxruntime (int8) and torch foreground logits differ by {steps:.1f} quantisation steps "
+        raise BundleError(f"onnxruntime (int8) and torch {graph} logits differ by {steps:.1f} quantisation steps "
                           f"at the 99th percentile (at most {FOREGROUND_INT8_STEPS:g}); {agree:.4%} of the mask's "
                           f"pixels agree (at least {FOREGROUND_INT8_AGREEMENT:.0%})")
     return out
+
+
+def load_refine(path: str | Path) -> Loaded:
+    """A trained refinement network (run or checkpoint folder) to put in an image bundle."""
+    try:
+        refine = load_model(path)
+    except ValueError as exc:
+        raise BundleError(str(exc)) from None
+    if refine.config.task != "refine":
+        raise BundleError(f"{path}: a {refine.config.task} run, not a refinement network (python -m model.train refine)")
+    return refine
+
+
+def refine_inputs(foreground: Loaded, size: int, seed: int = 0) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Calibration and check inputs of a refinement network, (1, 4, size, size) each: the photos of
+    :func:`foreground_photos`, each cut about the first network's mask (in torch) as the service
+    cuts it (:func:`model.image.mask.crop_input`), every other one in each list."""
+    spec = dataclasses.replace(TASKS["foreground"].spec(foreground.config, foreground.meta), crop_size=size)
+    net = foreground.model.net.eval()
+
+    def segment(rgb: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return mask_output(net(torch.from_numpy(mask_input(rgb, spec)[None])).numpy()[0, 0])
+
+    inputs = []
+    for p in generated_photos(per_category=2, views=2, seed=seed):
+        try:
+            first = object_mask(p.rgb, segment, spec)
+        except NoObjectError:
+            continue
+        h, w = first.shape
+        inputs.append(crop_input(p.rgb, first, object_square(mask_bounds(first > 0.5), h, w, spec.crop_margin),
+                                 spec)[None])
+    return inputs[::2], inputs[1::2]
+
+
+def _foreground_graphs(fg: Loaded | None, ref: Loaded | None, precision: str, graphs: list) -> list:
+    """Append the foreground network's graph (and the refinement's) to ``graphs``, in int8 when
+    ``precision`` says so (calibrated on photos the export makes); returns what to check each
+    with: (graph name, the network in torch, check inputs)."""
+    checks = []
+    for loaded, name, channels, make in ((fg, "foreground", 3, foreground_photos),
+                                         (ref, "foreground_refine", 4, lambda size: refine_inputs(fg, size))):
+        if loaded is None:
+            continue
+        graph = G.foreground_graph(loaded.model.net, loaded.config.image_size, channels, name)
+        calibration, inputs = make(loaded.config.image_size)
+        if precision == "int8":
+            graph = dataclasses.replace(graph, model=quantize_static_graph(
+                graph.model, [{"image": x} for x in calibration], reduce_range=True))
+        graphs.append(graph)
+        checks.append((name, loaded, inputs))
+    return checks
 
 
 def bundle_version(graphs: dict[str, dict], inp: dict, outp: dict) -> str:
@@ -246,10 +306,12 @@ def self_check(bundle_dir: Path, src: Loaded, batch: int = 3, seed: int = 0, for
 
 
 def export(source: str | Path, out: str | Path, name: str | None = None, force: bool = False,
-           foreground: str | Path | None = None, foreground_precision: str = "int8") -> dict:
-    """Write the bundle of ``source`` to ``out`` (atomically); returns its model.json.  An image
-    model's bundle also takes the ``foreground`` network (background removal for photos), stored
-    as ``foreground_precision`` (:data:`FOREGROUND_PRECISIONS`)."""
+           foreground: str | Path | None = None, foreground_precision: str = "int8",
+           refine: str | Path | None = None) -> dict:
+    r"""Write the bundle of ``source`` to ``out`` (atomically); returns its model.json.  An image
+    model's bundle also takes the ``foreground`` network (background removal for photos) and its
+    ``refine``\ ment network (a second look at the object's square), both stored as
+    ``foreground_precision`` (:data:`FOREGROUND_PRECISIONS`)."""
     if foreground_precision not in FOREGROUND_PRECISIONS:
         raise BundleError(f"the foreground precision is one of {', '.join(FOREGROUND_PRECISIONS)}, "
                           f"not {foreground_precision!r}")
@@ -258,31 +320,28 @@ def export(source: str | Path, out: str | Path, name: str | None = None, force: 
         raise BundleError(f"{out}: already exists; pass --force to replace it")
     src = load_source(source)
     task = BUNDLE_TASKS[src.config.task]
-    fg = None
+    fg = ref = None
     if foreground is not None:
         if task != Task.IMAGE_TO_SHAPE:
             raise BundleError(f"--foreground goes with an image model, not a {task} model")
         fg = load_foreground(foreground)
+    if refine is not None:
+        if fg is None:
+            raise BundleError("--refine goes with --foreground (it refines the foreground network's mask)")
+        ref = load_refine(refine)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix="tmp-", dir=out.parent))
     try:
         specs = {}
         graphs = export_graphs(src)
-        fg_inputs = None
-        if fg is not None:
-            graph = G.foreground_graph(fg.model.net, fg.config.image_size)
-            calibration, fg_inputs = foreground_photos(fg.config.image_size)
-            if foreground_precision == "int8":
-                graph = dataclasses.replace(graph, model=quantize_static_graph(
-                    graph.model, [{"image": x} for x in calibration], reduce_range=True))
-            graphs.append(graph)
+        checks = _foreground_graphs(fg, ref, foreground_precision, graphs)
         for g in graphs:
             model = onnx.load_from_string(g.model)
             onnx.checker.check_model(model, full_check=True)
             path = tmp / f"{g.name}.onnx"
             write_atomic(path, g.model)
             specs[g.name] = GraphSpec(g.name, path.name, sha256_file(path), g.inputs, g.outputs).to_json()
-        inp, outp = _io_spec(src, task, fg)
+        inp, outp = _io_spec(src, task, fg, ref)
         meta = {
             "format": BUNDLE_FORMAT if getattr(src.model, "guided", False) else 1, "task": task, "name": name or task,
             "version": bundle_version(specs, inp, outp),
@@ -291,17 +350,21 @@ def export(source: str | Path, out: str | Path, name: str | None = None, force: 
             "graphs": specs,
             "export": {"exporter": G.EXPORTER, "opset": G.OPSET, "torch": torch.__version__.split("+")[0],
                        "onnx": onnx.__version__, "batchnorm": "folded",
-                       "quantized": ["foreground"] if fg is not None and foreground_precision == "int8" else False,
+                       "quantized": [name for name, _, _ in checks] if checks and foreground_precision == "int8"
+                       else False,
                        **({"foreground_precision": foreground_precision} if fg is not None else {}),
                        **({"foreground_int8": FOREGROUND_INT8} if fg is not None and foreground_precision == "int8"
                           else {})},
             "provenance": {**{k: v for k, v in src.meta.items() if k != "evaluation"},
-                           **({"foreground": fg.meta} if fg is not None else {})},
+                           **({"foreground": fg.meta} if fg is not None else {}),
+                           **({"foreground_refine": ref.meta} if ref is not None else {})},
             "evaluation": src.meta.get("evaluation"),
         }
         write_atomic(tmp / MANIFEST, json_text(meta).encode())
-        meta["export"]["self_check"] = self_check(tmp, src, foreground=fg, foreground_inputs=fg_inputs,
-                                                  foreground_precision=foreground_precision)
+        meta["export"]["self_check"] = check = self_check(tmp, src)
+        runtime = Runtime(load_bundle(tmp), threads=1)
+        for graph_name, net, inputs in checks:
+            check.update(foreground_check(runtime, net, inputs, foreground_precision, graph_name))
         write_atomic(tmp / MANIFEST, json_text(meta).encode())
         tmp.chmod(0o777 & ~UMASK)
         if out.exists():

@@ -229,10 +229,11 @@ def image_encoder_graph(encoder: nn.Module, size: int, latent: int) -> Graph:
                   {"latent": ("float32", ("batch", latent))})
 
 
-def foreground_graph(net: nn.Module, size: int) -> Graph:
-    """The foreground network (BN folded): (B, 3, size, size) normalised images -> object logits."""
-    x = torch.rand(2, 3, size, size, generator=torch.Generator().manual_seed(0))
-    return _graph("foreground", fold_batchnorm(net), (x,), {"image": ("float32", ("batch", 3, size, size))},
+def foreground_graph(net: nn.Module, size: int, channels: int = 3, name: str = "foreground") -> Graph:
+    """A foreground network (BN folded): (B, channels, size, size) inputs -> object logits; the
+    refinement network (``channels`` 4, ``name`` foreground_refine) takes the crop and its first mask."""
+    x = torch.rand(2, channels, size, size, generator=torch.Generator().manual_seed(0))
+    return _graph(name, fold_batchnorm(net), (x,), {"image": ("float32", ("batch", channels, size, size))},
                   {"logits": ("float32", ("batch", 1, size, size))})
 
 

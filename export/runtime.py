@@ -118,6 +118,18 @@ class Runtime:
         logits = self.run("foreground", {"image": mask_input(rgb, spec)[None]})[0]
         return mask_output(logits[0, 0])
 
+    def refine(self, x: np.ndarray) -> np.ndarray:
+        """(S, S) object probability of a refinement input (4, S, S) (:func:`model.image.mask.crop_input`)
+        by the bundle's refinement network; ValueError without one."""
+        if "foreground_refine" not in self.sessions:
+            raise ValueError(f"{self.bundle.path}: the bundle has no refinement network")
+        logits = self.run("foreground_refine", {"image": np.ascontiguousarray(x[None], dtype=np.float32)})[0]
+        return mask_output(logits[0, 0])
+
+    @property
+    def has_refine(self) -> bool:
+        return "foreground_refine" in self.sessions
+
     @property
     def has_foreground(self) -> bool:
         return self.bundle.mask_spec() is not None

@@ -132,10 +132,15 @@ class Engine:
             with job.timer("mask"):
                 return served.runtime.segment(rgb)
 
+        def refine(x: np.ndarray) -> np.ndarray:
+            with job.timer("mask"):
+                return served.runtime.refine(x)
+
         with job.timer("decode_input"):
             return image_input(job.data, b.image_spec(), self.settings.max_image_pixels,
                                segment if served.runtime.has_foreground else None, job.remove_background,
-                               job.foreground_ratio, b.mask_spec() or MaskSpec(), box=job.box)
+                               job.foreground_ratio, b.mask_spec() or MaskSpec(),
+                               refine if served.runtime.has_refine else None, job.box)
 
     def mask_png(self, job: ImageJob) -> tuple[bytes, Framed]:
         """The mask a photo's framing used, as an 8-bit greyscale PNG of the photo's size (debug=mask),

@@ -498,3 +498,44 @@ def test_a_refined_mask_replaces_the_first_in_the_objects_square():
     assert out.shape == first.shape and out[40:80, 60:100].min() > 0.5
     assert out[60, 100:104].min() > 0.5                   # the rod, to the square's edge
     assert out[:, :50].max() == 0 and out[:30].max() == 0  # nothing outside the square
+
+
+def test_the_refinement_network_goes_into_the_bundle_and_the_framing_uses_it(tiny_data, runs, tmp_path):
+    """export --foreground FG --refine R: the bundle holds foreground_refine (4 input channels), its
+    mask settings the refinement's crop side; onnxruntime gives torch's probabilities; the framing
+    of a photo looks again at the object's square through it; --verify runs it."""
+    from export.__main__ import main as export_main
+    from export.bundle import BundleError, load_bundle
+    from export.exporter import export
+    from export.runtime import Runtime
+    from model.checkpoint import load_model
+    from model.image.frame import ImageSpec, frame_object
+    from model.image.mask import crop_input
+
+    refine = dict(task="refine", arch="unet-lite", encoder_width=4, image_size=64, teacher=str(runs / "fg"))
+    Trainer(config(tiny_data, tmp_path / "r", iters=2, val_every=2, ckpt_every=2, **refine)).run()
+    meta = export(runs / "img", tmp_path / "b", foreground=runs / "fg", refine=tmp_path / "r",
+                  foreground_precision="float32")
+    assert meta["graphs"]["foreground_refine"]["inputs"]["image"]["shape"] == ["batch", 4, 64, 64]
+    assert meta["export"]["self_check"]["refine_relative_error"] <= RELATIVE_TOLERANCE
+    bundle = load_bundle(tmp_path / "b")
+    spec = bundle.mask_spec()
+    assert spec.crop_size == 64 and spec.size == 32
+    rt = Runtime(bundle, threads=1)
+    rgb = np.random.default_rng(0).integers(0, 256, (90, 120, 3), dtype=np.uint8)
+    first = np.zeros((90, 120), np.float32)
+    first[30:60, 40:90] = 1
+    x = crop_input(rgb, first, (20, 70, 30, 100), spec)
+    with torch.no_grad():
+        want = torch.sigmoid(load_model(tmp_path / "r").model.net(torch.from_numpy(x[None]))).numpy()[0, 0]
+    assert np.abs(rt.refine(x) - want).max() < 1e-4
+    looks = []
+    framed = frame_object(rgb, ImageSpec(size=32), lambda im: first[::3, ::3] if im.shape[:2] == (90, 120) else
+                          np.ones((32, 32), np.float32), remove_background="true", mask_spec=spec,
+                          refine=lambda crop: looks.append(crop.shape) or rt.refine(crop))
+    assert looks == [(4, 64, 64)] and framed.mask_source == "network"
+    assert export_main(["--verify", str(tmp_path / "b")]) == 0
+    with pytest.raises(BundleError, match="--refine goes with --foreground"):
+        export(runs / "img", tmp_path / "c", refine=tmp_path / "r")
+    with pytest.raises(BundleError, match="not a refinement network"):
+        export(runs / "img", tmp_path / "c", foreground=runs / "fg", refine=runs / "fg")
