@@ -82,15 +82,20 @@ def _octree_spec(src: Loaded) -> dict:
             "planes": [d for d in range(dec.full_depth, dec.depth + 1) if dec.has_plane(d)], **spec}
 
 
-def load_foreground(path: str | Path) -> Loaded:
-    """A trained foreground network (run or checkpoint folder) to put in an image bundle."""
+def _load_task(path: str | Path, task: str, what: str) -> Loaded:
+    """A trained run or checkpoint folder of the given training task; BundleError otherwise."""
     try:
-        fg = load_model(path)
+        loaded = load_model(path)
     except ValueError as exc:
         raise BundleError(str(exc)) from None
-    if fg.config.task != "foreground":
-        raise BundleError(f"{path}: a {fg.config.task} run, not a foreground network")
-    return fg
+    if loaded.config.task != task:
+        raise BundleError(f"{path}: a {loaded.config.task} run, not {what}")
+    return loaded
+
+
+def load_foreground(path: str | Path) -> Loaded:
+    """A trained foreground network (run or checkpoint folder) to put in an image bundle."""
+    return _load_task(path, "foreground", "a foreground network")
 
 
 def _io_spec(src: Loaded, task: str, foreground: Loaded | None = None, refine: Loaded | None = None
@@ -192,13 +197,7 @@ def foreground_check(runtime: Runtime, foreground: Loaded, photos: list[np.ndarr
 
 def load_refine(path: str | Path) -> Loaded:
     """A trained refinement network (run or checkpoint folder) to put in an image bundle."""
-    try:
-        refine = load_model(path)
-    except ValueError as exc:
-        raise BundleError(str(exc)) from None
-    if refine.config.task != "refine":
-        raise BundleError(f"{path}: a {refine.config.task} run, not a refinement network (python -m model.train refine)")
-    return refine
+    return _load_task(path, "refine", "a refinement network (python -m model.train refine)")
 
 
 def refine_inputs(foreground: Loaded, size: int, seed: int = 0) -> tuple[list[np.ndarray], list[np.ndarray]]:
