@@ -21,6 +21,10 @@ distance (x10^3, cube units), the F-score at 1% of the diagonal and the normal c
 ways), each surface drawn uniformly by area (100,000 points), and the share of the mesh's area lying in parts thinner
 than a cell (both faces within a cell of each other); and the same for the other approach
 compared, marching cubes on the signed field (:func:`marching_cubes_surface`).
+
+"closed (welded)" is :func:`model.surface.checks.is_closed_embedded`: closed and 2-manifold as a
+reader that merges vertices by position loads the mesh.  Faces that cross other faces are counted
+by MeshLab where PyMeshLab is installed.
 """
 
 from __future__ import annotations
@@ -103,6 +107,19 @@ def scanned_octrees(depths: list[int], mesh_dir: str) -> list[tuple[str, object]
     return out
 
 
+def self_intersecting(vertices: np.ndarray, faces: np.ndarray) -> str:
+    """How many faces cross another face (MeshLab's self-intersection selection), or "-" where
+    PyMeshLab is not installed (``pip install pymeshlab``: a measurement tool, not a dependency)."""
+    try:
+        import pymeshlab  # optional: 100 MB, used by this measurement only
+    except ImportError:
+        return "-"
+    meshes = pymeshlab.MeshSet()
+    meshes.add_mesh(pymeshlab.Mesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int32)))
+    meshes.compute_selection_by_self_intersections_per_face()
+    return str(meshes.current_mesh().selected_face_number())
+
+
 def decoded_octrees(data: str, shapes: int) -> list[tuple[str, object]]:
     """The shipped image model's outputs for the first render of test shapes (one per category in turn)."""
     import json
@@ -148,15 +165,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.accuracy:
         return accuracy(args.depths, args.mesh_dir)
     inputs = decoded_octrees(args.data, args.shapes) + scanned_octrees(args.depths, args.mesh_dir)
-    print("| input | leaves | patch faces | closed faces | ratio | closed | median ms | worst ms | dense MC ms | worst / dense |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| input | leaves | patch faces | closed faces | ratio | closed (welded) | self-intersecting faces "
+          "| median ms | worst ms | dense MC ms | worst / dense |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name, tree in inputs:
         med, worst, m = timed(lambda: watertight_mesh(tree, world=False), args.repeats)
         patches = len(patch_mesh(tree, world=False).faces)
         dense = dense_reference(tree)
         print(f"| {name} | {sum(tree.leaves_per_depth())} | {patches} | {len(m.faces)} | {len(m.faces) / max(patches, 1):.1f} "
-              f"| {'yes' if m.closed else 'NO'} | {med * 1e3:.1f} | {worst * 1e3:.1f} | {dense * 1e3:.1f} "
-              f"| {worst / dense:.2f} |",
+              f"| {'yes' if m.closed else 'NO'} | {self_intersecting(m.vertices, m.faces)} | {med * 1e3:.1f} "
+              f"| {worst * 1e3:.1f} | {dense * 1e3:.1f} | {worst / dense:.2f} |",
               flush=True)
     if args.figure:
         decoded = [x for x in inputs if x[0].startswith("decoded")]

@@ -3,9 +3,11 @@ grid (dual marching cubes), with inside and outside decided by the planes and by
 
 The patch mesh of :mod:`model.octree.patches` is the paper's output: one planar polygon per leaf,
 with cracks between them.  :func:`watertight_mesh` returns instead a mesh that is closed,
-consistently wound with the outside in front, 2-manifold and of positive volume, and whose
-vertices lie on the leaf planes where the planes cross (sharp edges stay sharp); parts thinner
-than a cell are kept as closed slabs about one cell thick.  NumPy/SciPy only (no torch): the CLI,
+consistently wound with the outside in front, 2-manifold (also as embedded: no two vertices at
+one position) and of positive volume, and whose vertices lie on the leaf planes where the planes
+cross (sharp edges stay sharp); parts thinner than a cell are kept as closed slabs about one cell
+thick.  Faces may cross other faces where neighbouring leaves' planes disagree (measured by
+``bench.surface``).  NumPy/SciPy only (no torch): the CLI,
 evaluation and the service call the same function.
 """
 
@@ -19,7 +21,7 @@ from scipy.sparse.csgraph import connected_components
 
 from ..octree import Octree
 from ..octree.patches import patch_mesh
-from .checks import is_closed
+from .checks import is_closed, is_closed_embedded
 from .dmc import contour
 from .grid import Grid, Leaves, build_grid, leaves_of, rasterise
 from .orient import orient
@@ -42,7 +44,9 @@ class SurfaceMesh:
     """An indexed triangle mesh: ``faces`` index ``vertices`` and are wound counter-clockwise seen
     from outside (patches: about their plane's normal).  ``vertex_depth``: the octree depth of
     the leaf each vertex comes from.  ``closed``: every edge has exactly two faces that traverse it
-    in opposite directions (checked on the result, not assumed)."""
+    in opposite directions and every vertex's faces form one fan, also once vertices at the same
+    position are merged as welding readers do (checked on the result, not assumed:
+    :func:`model.surface.checks.is_closed_embedded`)."""
 
     kind: str                # one of SURFACES
     vertices: np.ndarray     # (V, 3) float64
@@ -67,7 +71,7 @@ def surface_mesh(octree: Octree, kind: str = DEFAULT_SURFACE, world: bool = True
     if faces is None or len(m.faces) <= faces:
         return m
     verts, tris, depth, _ = simplify(m.vertices, m.faces, faces, m.vertex_depth)
-    return SurfaceMesh(m.kind, verts, tris, depth, is_closed(tris))
+    return SurfaceMesh(m.kind, verts, tris, depth, is_closed_embedded(verts, tris))
 
 
 def signed_grid(octree: Octree) -> tuple[Grid, Leaves, np.ndarray]:
@@ -93,10 +97,10 @@ def watertight_mesh(octree: Octree, world: bool = True, min_component_faces: int
     verts, faces, leaf = contour(grid, leaves, inside)
     depth = octree.depth - np.log2(np.where(leaf >= 0, leaves.cells[np.maximum(leaf, 0)], 1)).astype(np.int64)
     keep, faces = drop_small_components(len(verts), faces, min_component_faces)
-    verts, depth = np.clip(verts[keep], 0.0, 1.0), depth[keep]      # the octree's cube is its domain
+    verts, depth = verts[keep], depth[keep]
     if world:
         verts = octree.normalizations[0].to_world(verts)
-    return SurfaceMesh("watertight", verts, faces, depth, is_closed(faces))
+    return SurfaceMesh("watertight", verts, faces, depth, is_closed_embedded(verts, faces))
 
 
 def drop_small_components(nverts: int, faces: np.ndarray, min_faces: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,10 +1,32 @@
-"""What a closed mesh must satisfy, checked on the result rather than assumed."""
+"""What a closed mesh must satisfy, checked on the result rather than assumed: in its index
+buffer (:func:`is_closed`, :func:`is_manifold`) and as embedded in space, as a reader that merges
+vertices by position sees it (:func:`is_closed_embedded`)."""
 
 from __future__ import annotations
 
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+WELD = 1e-7
+"""Vertices closer than this share of the bounding box's diagonal are one point to a reader that
+merges by position (trimesh merges at 1e-8 absolute; Blender's "merge by distance" at 1e-4 of a
+unit; slicers weld likewise)."""
+
+
+def weld(vertices: np.ndarray, faces: np.ndarray, tolerance: float = WELD) -> np.ndarray:
+    """``faces`` renumbered so that vertices within ``tolerance`` of the bounding box's diagonal of
+    one another (transitively) are one vertex, as a welding reader loads the mesh."""
+    if not len(vertices):
+        return faces
+    diag = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
+    pairs = cKDTree(vertices).query_pairs(tolerance * max(diag, 1e-300), output_type="ndarray")
+    if not len(pairs):
+        return faces
+    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(vertices),) * 2)
+    _, label = connected_components(graph, directed=False)
+    return label[faces]
 
 
 def is_closed(faces: np.ndarray) -> bool:
@@ -41,3 +63,11 @@ def is_manifold(faces: np.ndarray) -> bool:
     graph = coo_matrix((np.ones(3 * f, np.int8), (start, back[partner])), shape=(3 * f, 3 * f))
     fans, _ = connected_components(graph, directed=False)
     return fans == len(np.unique(faces))
+
+
+def is_closed_embedded(vertices: np.ndarray, faces: np.ndarray) -> bool:
+    """Closed and 2-manifold (:func:`is_manifold`) once vertices closer than :data:`WELD` of the box
+    are merged, with no face collapsed by the merge: what a welding reader finds."""
+    welded = weld(vertices, faces)
+    collapsed = (welded[:, 0] == welded[:, 1]) | (welded[:, 1] == welded[:, 2]) | (welded[:, 0] == welded[:, 2])
+    return not collapsed.any() and is_manifold(welded)

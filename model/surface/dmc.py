@@ -13,6 +13,7 @@ edges and corners where two or three leaf planes meet stay sharp.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .grid import CORNER_OFFSETS, Grid, Leaves
 from .sign import fill_cavities
@@ -55,7 +56,8 @@ def repair(inside: np.ndarray, max_rounds: int = 64) -> tuple[np.ndarray, np.nda
 
 def contour(grid: Grid, leaves: Leaves, inside: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Vertices (V, 3) in cube coordinates, triangles (F, 3) of the surface between the inside
-    and outside corners, outward-facing, and the leaf owning each vertex's cell (-1: none)."""
+    and outside corners, outward-facing, and the leaf owning each vertex's cell (-1: none).  The
+    vertices lie in the unit cube and no two are at one position (:func:`_apart`)."""
     inside, config, _ = repair(inside)
     first = np.zeros(config.size + 1, np.int64)
     np.cumsum(COMPONENTS[config].ravel(), out=first[1:])
@@ -92,7 +94,36 @@ def contour(grid: Grid, leaves: Leaves, inside: np.ndarray) -> tuple[np.ndarray,
     rings = np.concatenate(rings)
     cell = _vertex_cells(config.shape, first)
     verts = _place(grid, leaves, cell, np.concatenate(cells), *(np.concatenate(e) for e in zip(*edges)), rings)
+    verts = np.clip(verts, 0.0, 1.0)                             # the octree's cube is the domain
+    verts = _apart(verts, rings, np.clip(grid.corner_positions(cell) + grid.h / 2, 0.0, 1.0), grid.h)
     return verts, _triangles(verts, rings), grid.owner[cell[:, 0], cell[:, 1], cell[:, 2]].astype(np.int64)
+
+
+APART = 1e-3
+"""How far (in cells) a vertex moves away from another that has its position."""
+
+
+def _apart(verts: np.ndarray, quads: np.ndarray, cell_centre: np.ndarray, h: float, rounds: int = 4) -> np.ndarray:
+    """The vertices, each one within ``APART h / 10`` of another (vertices of neighbouring cells
+    clipped onto their common face, edge or corner, or two components of one cell placed by the
+    same planes) moved by :data:`APART` cells: first towards its own cell's centre (``cell_centre``),
+    then, for those still together, towards the centre of its own quads, in rounds until none is.
+    A reader that merges vertices by position (as trimesh, Blender and slicers do) then finds the
+    same mesh.  Vertices move towards points inside the unit cube, so they stay in it."""
+    count = np.maximum(np.bincount(quads.ravel(), minlength=len(verts)), 1)
+    middle = verts[quads].mean(1)                                # each quad's centroid
+    centre = np.stack([np.bincount(quads.ravel(), np.repeat(middle[:, k], 4), len(verts)) for k in range(3)], 1)
+    centre /= count[:, None]
+    out = verts
+    for r in range(rounds):
+        pairs = cKDTree(out).query_pairs(0.1 * APART * h, output_type="ndarray")
+        if not len(pairs):
+            break
+        near = np.unique(pairs)
+        step = (cell_centre if r == 0 else centre)[near] - out[near]
+        out = out.copy()
+        out[near] += APART * h * step / np.maximum(np.linalg.norm(step, axis=1, keepdims=True), 1e-30)
+    return out
 
 
 BACK = 0.25

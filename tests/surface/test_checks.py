@@ -3,7 +3,7 @@
 import numpy as np
 import trimesh
 
-from model.surface.checks import is_closed, is_manifold
+from model.surface.checks import WELD, is_closed, is_closed_embedded, is_manifold, weld
 
 TETRA = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
 
@@ -42,3 +42,30 @@ def test_agrees_with_trimesh_on_closed_meshes_and_on_their_damaged_copies():
             t = trimesh.Trimesh(mesh.vertices, damaged, process=False)
             assert not (t.is_watertight and t.is_winding_consistent)
             assert not is_closed(damaged)
+
+
+def test_a_welding_reader_sees_vertices_at_one_position_as_one():
+    """Two tetrahedra touching at a corner, each with its own vertex there: closed and a manifold in
+    the index buffer, pinched once welded; moved apart by a little more than WELD of the box, not."""
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    other = 2 * corners[3] - corners                                # mirrored through the first's vertex 3
+    faces = np.vstack([TETRA, TETRA + 4])
+    touching = np.vstack([corners, other])
+    assert is_closed(faces) and is_manifold(faces)
+    assert np.array_equal(touching[3], touching[7])
+    welded = weld(touching, faces)
+    assert len(np.unique(welded)) == 7 and not is_closed_embedded(touching, faces)
+    diag = np.linalg.norm(touching.max(0) - touching.min(0))
+    apart = touching.copy()
+    apart[7] += 3 * WELD * diag
+    assert is_closed_embedded(apart, faces)
+    close = touching.copy()
+    close[7] += 0.3 * WELD * diag
+    assert not is_closed_embedded(close, faces)
+
+
+def test_a_weld_that_collapses_a_face_is_not_closed():
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    squashed = corners.copy()
+    squashed[1] = squashed[0] + 1e-9                                # an edge shorter than the weld
+    assert is_closed(TETRA) and is_closed_embedded(corners, TETRA) and not is_closed_embedded(squashed, TETRA)

@@ -8,9 +8,11 @@ import manifold3d
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial import cKDTree
 
 from model.octree import LEAF, build_octree
 from model.surface import MIN_COMPONENT_FACES, SURFACES, is_closed, surface_mesh, watertight_mesh
+from model.surface.checks import WELD, is_closed_embedded
 from model.surface.tables import COMPONENTS, CORNER_COMPONENT, REPAIR, boundary_loops, components
 
 from ..meshes import mesh_path
@@ -29,7 +31,18 @@ def check_closed(m) -> trimesh.Trimesh:
                                                 tri_verts=m.faces.astype(np.uint32)))
     assert solid.status() == manifold3d.Error.NoError
     assert min(len(c.faces) for c in mesh.split(only_watertight=False)) >= MIN_COMPONENT_FACES
+    _closed_as_a_welding_reader_loads_it(m)
     return mesh
+
+
+def _closed_as_a_welding_reader_loads_it(m) -> None:
+    """No two vertices closer than WELD of the box, and trimesh's default load (which merges
+    vertices by position) finds every vertex and a closed, consistently wound mesh."""
+    diag = np.linalg.norm(m.vertices.max(0) - m.vertices.min(0))
+    assert not len(cKDTree(m.vertices).query_pairs(WELD * diag)), "vertices a welding reader merges"
+    welded = trimesh.Trimesh(m.vertices, m.faces)
+    assert len(welded.vertices) == len(m.vertices) and welded.is_watertight and welded.is_winding_consistent
+    assert is_closed_embedded(m.vertices, m.faces)
 
 
 def _vertex_fans_are_single(mesh: trimesh.Trimesh) -> None:
