@@ -21,7 +21,7 @@ from model.octree import Octree, PointCloud, build_octree, scan_octree
 from model.octree.batch import merge_octrees, split_octree
 from model.octree.fuse import keep_scan
 from model.octree.geometry import to_y_up, up_rotations
-from model.octree.pointcloud import MIN_SCAN_POINTS
+from model.octree.pointcloud import MIN_SCAN_POINTS, estimate_normals
 from model.octree.symmetry import Mirror, symmetrize
 from model.surface import SURFACES, surface_mesh
 
@@ -84,7 +84,10 @@ class Engine:
                          for task, fn in ((Task.IMAGE_TO_SHAPE, self.image_batch), (Task.COMPLETION, self.complete_batch))}
 
     def warm_up(self) -> None:
-        """One inference per model (first calls allocate and optimise); then the service is ready."""
+        """One inference per model (first calls allocate and optimise) and one normal estimation
+        (its kernels compile on their first call: seconds, where no cache was written); then the
+        service is ready."""
+        estimate_normals(_sphere(200)[0])
         for served in self.models.values():
             rt, b = served.runtime, served.bundle
             guide = None

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import io
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,6 +18,8 @@ from model.files import sha256_file
 from model.surface import surface_mesh
 
 from .conftest import make_client
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 def png(img: np.ndarray) -> bytes:
@@ -422,3 +427,18 @@ def test_surface_and_face_budget_parameters(client):
     assert bad.status_code == 422 and "surface=watertight" in bad.json()["error"]["message"]
     bad = client.post("/v1/octree?depth=6&surface=watertight&faces=2", files={"shape": ("s.obj", data)})
     assert bad.status_code == 422 and "faces" in bad.json()["error"]["message"]
+
+
+def test_the_warm_up_compiles_the_normal_estimation_before_the_first_scan(models_dir):
+    """A fresh process: after the warm-up, the compiled kernels of normal estimation have their
+    machine code (a first completion request does not spend seconds compiling them)."""
+    code = ("import sys; from service.engine import Engine; from service.settings import Settings; "
+            "from model.octree import orient; e = Engine(Settings(models_dir=sys.argv[1])); e.load(); "
+            "before = [len(f.signatures) for f in (orient.covariances, orient.spanning_tree, orient.propagate_signs)]; "
+            "e.warm_up(); "
+            "after = [len(f.signatures) for f in (orient.covariances, orient.spanning_tree, orient.propagate_signs)]; "
+            "print(before, after)")
+    out = subprocess.run([sys.executable, "-c", code, str(models_dir)], capture_output=True, text=True, timeout=600,
+                         cwd=REPO)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "[0, 0, 0] [1, 1, 1]", out.stdout
