@@ -179,6 +179,17 @@ def test_a_face_budget_is_met_and_the_mesh_stays_closed(budget, volume_change):
         surface_mesh(o, "patches", faces=budget)
 
 
+@pytest.mark.parametrize("name, budget", [("chair_soup.off", 3000), ("airplane_soup.stl", 1000)])
+def test_a_face_budget_never_makes_two_surfaces_touch(name, budget):
+    """Simplifying these far enough collapses a thin part's two sides onto each other (closed in the
+    index buffer, pinched once welded); the mesh returned is the last one closed as embedded,
+    with more faces than asked, and fewer than the unsimplified surface's."""
+    o = octree_of(trimesh.load(mesh_path(name), force="mesh"), 6)
+    m = surface_mesh(o, "watertight", faces=budget)
+    check_closed(m)
+    assert len(m.faces) < len(watertight_mesh(o).faces)
+
+
 def test_a_thin_plate_whose_planes_point_either_way_has_no_holes():
     """One plane stands for both faces of a part thinner than a cell, so its orientation is a
     guess; with every other leaf's plane flipped the plate still comes out whole (genus 0)."""
