@@ -12,7 +12,8 @@ flood passes only through corners at least ``seal`` cells from every plane band,
 predicted surface narrower than about ``2 seal`` cells (a leaf predicted empty, a crack between
 patches, a part of a scan no view saw) does not let it into the interior; the flooded region then
 grows back by ``seal`` cells.  The seal starts at 1 and widens while the flood still reaches the
-inside of many planes (:data:`LEAK`): the sign of a leak.
+inside of many planes (:data:`LEAK`): the sign of a leak, unless widening does not help
+(:func:`chosen_seal`).
 What the flood does not reach is inside, unless it is a narrow outside pocket such as the slot
 between two close parts: a region that the flooded outside touches (through corners away from
 the planes) and whose surrounding plane corners are mostly on the outside of their planes.  An
@@ -34,6 +35,10 @@ LEAK = 0.2
 """The share of plane corners touching the flooded outside that are on the inside of their plane,
 above which the flood is taken to have leaked into the interior (measured: at most 0.11 where it
 did not, on thin and thick shapes; 0.43 where it did) and is tried again with a wider seal."""
+DROP = 0.5
+"""Where no seal brings the share to :data:`LEAK`, a seal that brings it to this fraction of the
+first seal's closed a leak (measured on real meshes: a scan's open bottom 0.39 -> 0.002); shares
+that stay within it (0.43 -> 0.42 on a chair) are thin parts, not a leak (:func:`chosen_seal`)."""
 
 
 def inside_corners(grid: Grid, leaves: Leaves, seals: tuple[int, ...] = (1, 2, 3, 4)) -> np.ndarray:
@@ -44,11 +49,14 @@ def inside_corners(grid: Grid, leaves: Leaves, seals: tuple[int, ...] = (1, 2, 3
     decisive = grid.near & (np.abs(grid.value) <= margin)
     plane_inside = decisive & (grid.value < 0)
     far = ~decisive
+    floods, shares = [], []
     for seal in seals:
-        outside = _flood(far, seal)
-        touching = _touching(outside) & decisive
-        if (touching & plane_inside).sum() <= LEAK * max(touching.sum(), 1):
+        floods.append(_flood(far, seal))
+        touching = _touching(floods[-1]) & decisive
+        shares.append((touching & plane_inside).sum() / max(touching.sum(), 1))
+        if shares[-1] <= LEAK:
             break
+    outside = floods[chosen_seal(shares)]
     rest = far & ~outside
     inside = plane_inside | rest
     if rest.any():
@@ -66,6 +74,22 @@ def inside_corners(grid: Grid, leaves: Leaves, seals: tuple[int, ...] = (1, 2, 3
         pocket[0] = False
         inside &= ~pocket[regions]
     return fill_cavities(inside)
+
+
+def chosen_seal(shares: list[float]) -> int:
+    """Which of the seals tried to use, given the share of plane corners touching each one's flood
+    that are on the inside of their plane: the first at most :data:`LEAK` (a flood that did not
+    leak); if none is, the first that halved the first seal's share (a leak that a wider seal
+    closes), else the first.  A share that stays high whatever the seal is no leak: the backs of
+    parts thinner than a cell, whose one plane has the outside on both sides; sealing wider then
+    only fills the slots between such parts (measured: a chair's slats, an airplane's tail)."""
+    for k, share in enumerate(shares):
+        if share <= LEAK:
+            return k
+    for k, share in enumerate(shares):
+        if share <= DROP * shares[0]:
+            return k
+    return 0
 
 
 def _flood(far: np.ndarray, seal: int) -> np.ndarray:
