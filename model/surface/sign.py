@@ -37,8 +37,10 @@ above which the flood is taken to have leaked into the interior (measured: at mo
 did not, on thin and thick shapes; 0.43 where it did) and is tried again with a wider seal."""
 DROP = 0.5
 """Where no seal brings the share to :data:`LEAK`, a seal that brings it to this fraction of the
-first seal's closed a leak (measured on real meshes: a scan's open bottom 0.39 -> 0.002); shares
-that stay within it (0.43 -> 0.42 on a chair) are thin parts, not a leak (:func:`chosen_seal`)."""
+first seal's is taken to have closed a leak; shares that stay above it are thin parts, not a leak
+(:func:`chosen_seal`).  Measured at depth 6 on 21 real meshes: real leaks fall under LEAK (a
+scan's open bottom 0.39 -> 0.002); thin-walled shapes stay flat (a chair 0.43 -> 0.43, an
+airplane 0.54 -> 0.54)."""
 
 
 def inside_corners(grid: Grid, leaves: Leaves, seals: tuple[int, ...] = (1, 2, 3, 4)) -> np.ndarray:
