@@ -24,8 +24,9 @@ from model.checkpoint import Loaded, load_model
 from model.data.photos import generated_photos
 from model.data.shapes import CATEGORIES
 from model.files import UMASK, json_text, sha256_file, write_atomic
-from model.image.mask import MaskSpec, NoObjectError, crop_input, mask_bounds, mask_input, mask_output, object_mask, object_square
+from model.image.mask import MaskSpec, NoObjectError, crop_input, mask_bounds, mask_input, object_mask, object_square
 from model.networks import ARCHS, CLASSIFIER_ARCHS, OctreeDecoder, TorchSteps
+from model.networks.foreground import torch_segment
 from model.nn.tensors import OctreeTensors
 from model.octree import DEFAULT_THRESHOLD
 from model.octree.pointcloud import SCAN_FRAME_MARGIN
@@ -205,12 +206,7 @@ def refine_inputs(foreground: Loaded, size: int, seed: int = 0) -> tuple[list[np
     :func:`foreground_photos`, each cut about the first network's mask (in torch) as the service
     cuts it (:func:`model.image.mask.crop_input`), every other one in each list."""
     spec = dataclasses.replace(TASKS["foreground"].spec(foreground.config, foreground.meta), crop_size=size)
-    net = foreground.model.net.eval()
-
-    def segment(rgb: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return mask_output(net(torch.from_numpy(mask_input(rgb, spec)[None])).numpy()[0, 0])
-
+    segment = torch_segment(foreground.model.net.eval(), spec)
     inputs = []
     for p in generated_photos(per_category=2, views=2, seed=seed):
         try:

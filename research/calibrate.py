@@ -37,6 +37,7 @@ from model.data.photos import photo_split_view
 from model.files import atomic_path, json_text, write_atomic
 from model.networks import OctreeDecoder
 from model.networks.decoder import teacher_skips
+from model.networks.foreground import torch_segment
 from model.nn.tensors import OctreeTensors
 from model.octree import SPLIT
 from model.octree.metrics import Reference, mean_squared_distance, missing_part
@@ -45,7 +46,7 @@ from model.train.config import KEEP_SCAN_FILE, MASK_GUIDE_FILE, load_checkpoint,
 from model.train.tasks import TASKS, encode_with_guide
 
 from .decoding import decoded_points
-from .masks import mask_ious, torch_segment
+from .masks import mask_ious
 from .measures import MISSING_GAP, split_subset
 from .results import category_means
 from .results_table import paired_difference
@@ -261,7 +262,7 @@ def calibrate_mask_guide(run: str, data: str, split: str = "val", limit: int | N
     records = TASKS[cfg.task].dataset(cfg, split, 0, limit=limit)
     photos = [photo_split_view(s.images, s.shape_id) for s in records.samples]
     base = dataclasses.replace(TASKS[cfg.task].spec(cfg), guide=0.0)
-    network, seen = torch_segment(loaded.model, base), {}
+    network, seen = torch_segment(loaded.model.net, base), {}
 
     def segment(rgb: np.ndarray) -> np.ndarray:
         key = (rgb.shape, hash(rgb.tobytes()))

@@ -24,13 +24,13 @@ import numpy as np
 import torch
 
 from export.bundle import load_bundle
+from export.exporter import load_refine
 from export.runtime import Runtime
-from model.checkpoint import load_model
 from model.cli import command_parser
 from model.data.photos import Photo, photo_composite
 from model.data.shapes import stable_hash
 from model.files import json_text, write_atomic
-from model.image.mask import MaskSpec, NoObjectError, mask_bounds, mask_iou, object_mask, resize_mask
+from model.image.mask import MaskSpec, NoObjectError, mask_bounds, mask_iou, object_mask, object_square, resize_mask
 from model.train.data import RecordSet
 from model.train.foreground import REFINE_STYLE, thin_parts
 
@@ -50,9 +50,7 @@ def validation_photos(data: str, limit: int | None = None) -> list[tuple[str, Ph
 def refine_in_torch(path: str) -> Callable[[np.ndarray], np.ndarray]:
     """A refinement network (run or checkpoint) in torch: a (4, S, S) crop input to its object
     probability (S, S)."""
-    loaded = load_model(path)
-    if loaded.config.task != "refine":
-        raise ValueError(f"--refine {path} is a {loaded.config.task} model, not a refinement network")
+    loaded = load_refine(path)
     net = loaded.model.net.eval()
 
     def refine(x: np.ndarray) -> np.ndarray:
@@ -68,7 +66,6 @@ def grabcut(rgb: np.ndarray, first: np.ndarray, spec: MaskSpec, side: int = 256,
     above 0.5, probable background within the square, sure background at its border."""
     import cv2  # deferred: OpenCV is measured here, not a dependency
 
-    from model.image.mask import object_square
     h, w = first.shape
     y0, y1, x0, x1 = object_square(mask_bounds(first > 0.5), h, w, spec.crop_margin)
     f = side / max(y1 - y0, x1 - x0)

@@ -6,37 +6,26 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import torch
 
 from model.checkpoint import load_model
 from model.data.photos import photo_split_view
-from model.image.mask import NoObjectError, mask_input, mask_iou, mask_output, object_mask
+from model.image.mask import NoObjectError, mask_iou, object_mask
+from model.networks.foreground import torch_segment
 from model.train.config import TrainConfig
 from model.train.tasks import TASKS
 
 from .results import category_means
 
 
-def torch_segment(model, spec):
-    """The foreground network of a loaded model in torch, as :meth:`export.runtime.Runtime.segment`
-    runs its graph: an (H, W, 3) uint8 image to its object probability on the network's grid."""
-
-    def segment(rgb: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            logits = model.net(torch.from_numpy(mask_input(rgb, spec)[None])).numpy()
-        return mask_output(logits[0, 0])
-    return segment
-
-
 def foreground_in_torch(checkpoint: str) -> tuple:
     """A foreground network's checkpoint or run folder, in torch: (its ``segment`` function, as
-    :func:`torch_segment`; its :class:`~model.image.mask.MaskSpec`, with the guided filter
+    :func:`model.networks.foreground.torch_segment`; its :class:`~model.image.mask.MaskSpec`, with the guided filter
     calibrated for it): the background removal of the bundle it would be exported into."""
     loaded = load_model(checkpoint)
     if loaded.config.task != "foreground":
         raise ValueError(f"--foreground {checkpoint} is a {loaded.config.task} model, not a foreground network")
     spec = TASKS["foreground"].spec(loaded.config, loaded.meta)
-    return torch_segment(loaded.model, spec), spec
+    return torch_segment(loaded.model.net, spec), spec
 
 
 def mask_ious(photos: list, segment, spec) -> list[float]:
@@ -64,7 +53,7 @@ def evaluate_foreground(model, cfg: TrainConfig, run: str, split: str = "test", 
     provenance (its calibrated guided filter), for the network in torch."""
 
     spec = runtime.bundle.mask_spec() if runtime is not None else TASKS[cfg.task].spec(cfg, meta)
-    segment = runtime.segment if runtime is not None else torch_segment(model, spec)
+    segment = runtime.segment if runtime is not None else torch_segment(model.net, spec)
     records = TASKS[cfg.task].dataset(cfg, split, 0, limit=limit)
     t = time.perf_counter()
     views = [(s, photo_split_view(s.images, s.shape_id)) for s in records.samples]

@@ -13,9 +13,14 @@ with ``in_channels=4`` the refinement network's (B, 4, S, S) crops with the firs
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
+import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
+
+from ..image.mask import MaskSpec, mask_input, mask_output
 
 
 def _conv(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
@@ -151,3 +156,13 @@ class ForegroundModel(nn.Module):
     def forward(self, images: torch.Tensor, masks: torch.Tensor, skeletons: torch.Tensor | None = None,
                 thin: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         return mask_losses(self.net(images), masks, skeletons, self.skeleton_weight, thin)
+
+
+def torch_segment(net: nn.Module, spec: MaskSpec) -> Callable[[np.ndarray], np.ndarray]:
+    """A foreground network in torch, as :meth:`export.runtime.Runtime.segment` runs its graph: an
+    (H, W, 3) uint8 image to its object probability on the network's grid."""
+
+    def segment(rgb: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return mask_output(net(torch.from_numpy(mask_input(rgb, spec)[None])).numpy()[0, 0])
+    return segment

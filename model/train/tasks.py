@@ -22,11 +22,11 @@ from torch import nn
 from ..decode import Guide, matched_rows
 from ..files import atomic_path
 from ..image.frame import ImageSpec, prepare_image
-from ..image.mask import MaskSpec, mask_input, mask_output
+from ..image.mask import MaskSpec
 from ..networks import ARCHS, IMAGE_DECODERS, IMAGE_ENCODERS, Autoencoder, ImageToShape
 from ..networks.classifier import CLASSIFIER_ARCHS, Classifier
 from ..networks.decoder import STRUCTURE_LOSSES
-from ..networks.foreground import FOREGROUND_ARCHS, ForegroundModel
+from ..networks.foreground import FOREGROUND_ARCHS, ForegroundModel, torch_segment
 from ..nn.tensors import OctreeTensors
 from ..octree.geometry import ROTATIONS
 from .classify import ClassifySet
@@ -381,12 +381,8 @@ class RefineTask(ForegroundTask):
 
     def inputs(self, cfg, dataset, indices, rng):
         net, first = _first_stage(cfg.teacher)
-
-        def first_look(rgb: np.ndarray) -> np.ndarray:
-            with torch.no_grad():
-                return mask_output(net(torch.from_numpy(mask_input(rgb, first)[None])).numpy()[0, 0])
-
-        images, masks = refine_batch([dataset.samples[i] for i in indices], first_look, first, self.spec(cfg), rng)
+        images, masks = refine_batch([dataset.samples[i] for i in indices], torch_segment(net, first), first,
+                                     self.spec(cfg), rng)
         out = [torch.from_numpy(images), torch.from_numpy(masks)]
         out.append(torch.from_numpy(tubed_skeletons(masks)) if cfg.skeleton_weight > 0 else None)
         return (*out, torch.from_numpy(thin_parts(masks)))

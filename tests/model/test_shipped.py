@@ -104,11 +104,11 @@ def _photo_of_an_unseen_chair(seed: int = 0):
 def _finds_the_object_in_a_photo(loaded, meta):
     """An unseen chair on held-out photographs: the mask finds it (IoU with the exact mask)."""
     from model.image.mask import object_mask
+    from model.networks.foreground import torch_segment
     from model.train.tasks import TASKS
-    from research.masks import torch_segment
 
     spec = TASKS["foreground"].spec(loaded.config)
-    segment = torch_segment(loaded.model, spec)
+    segment = torch_segment(loaded.model.net, spec)
     ious = []
     for seed in range(4):
         photo = _photo_of_an_unseen_chair(seed)
