@@ -110,20 +110,27 @@ def _apart(verts: np.ndarray, quads: np.ndarray, cell_centre: np.ndarray, h: flo
     then, for those still together, towards the centre of its own quads, in rounds until none is.
     A reader that merges vertices by position (as trimesh, Blender and slicers do) then finds the
     same mesh.  Vertices move towards points inside the unit cube, so they stay in it."""
-    count = np.maximum(np.bincount(quads.ravel(), minlength=len(verts)), 1)
-    middle = verts[quads].mean(1)                                # each quad's centroid
-    centre = np.stack([np.bincount(quads.ravel(), np.repeat(middle[:, k], 4), len(verts)) for k in range(3)], 1)
-    centre /= count[:, None]
     out = verts
     for r in range(rounds):
         pairs = cKDTree(out).query_pairs(0.1 * APART * h, output_type="ndarray")
         if not len(pairs):
             break
         near = np.unique(pairs)
-        step = (cell_centre if r == 0 else centre)[near] - out[near]
+        step = (cell_centre[near] if r == 0 else _quad_centres(verts, quads, near)) - out[near]
         out = out.copy()
         out[near] += APART * h * step / np.maximum(np.linalg.norm(step, axis=1, keepdims=True), 1e-30)
     return out
+
+
+def _quad_centres(verts: np.ndarray, quads: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """(len(which), 3): for the vertices ``which``, the mean of the centroids of the quads around each."""
+    rows = np.flatnonzero(np.isin(quads, which).any(1))
+    around, middle = quads[rows], verts[quads[rows]].mean(1)
+    index = np.searchsorted(which, around.ravel())
+    mine = (index < len(which)) & (which[np.minimum(index, len(which) - 1)] == around.ravel())
+    total = np.zeros((len(which), 3))
+    np.add.at(total, index[mine], np.repeat(middle, 4, axis=0)[mine])
+    return total / np.maximum(np.bincount(index[mine], minlength=len(which)), 1)[:, None]
 
 
 BACK = 0.25
