@@ -84,9 +84,12 @@ def _weight(normals: np.ndarray, i: int, j: int) -> float:
 @numba.njit(cache=True, nogil=True)
 def neighbour_graph(nn: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The k-nearest-neighbour graph made undirected, as the rows, columns and weights
-    (:func:`_weight`) of its symmetric sparse matrix in canonical CSR order (rows ascending, each
-    row's columns ascending, every pair once): point ``i`` joins its neighbours ``nn[i, 1:]``
-    (``nn[i, 0]`` is ``i`` itself) and the points that have ``i`` among theirs."""
+    (:func:`_weight`) of the upper triangle of its symmetric sparse matrix in canonical CSR order
+    (rows ascending, each row's columns ascending, every pair once, ``row < col``): point ``i``
+    joins its neighbours ``nn[i, 1:]`` (``nn[i, 0]`` is ``i`` itself) and the points that have
+    ``i`` among theirs.  Kruskal's walk over the whole symmetric matrix in stably sorted order
+    meets each pair's lower entry after its upper one, with the same weight, and rejects it; the
+    upper triangle alone gives the same tree with half the edges to sort."""
     n, k = nn.shape
     incoming = np.zeros(n + 1, np.int64)
     for i in range(n):
@@ -100,7 +103,7 @@ def neighbour_graph(nn: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np
             t = nn[i, j]
             source[fill[t]] = i
             fill[t] += 1
-    rows = np.empty(n * (k - 1) + start[n], np.int64)
+    rows = np.empty(n * (k - 1) + start[n], np.int64)      # at most; the upper triangle is about half
     cols = np.empty_like(rows)
     m = 0
     row = np.empty(k - 1 + (start[1:] - start[:-1]).max(), np.int64)
@@ -119,7 +122,7 @@ def neighbour_graph(nn: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np
                 q -= 1
             row[q] = v
         for r in range(c):
-            if r > 0 and row[r] == row[r - 1]:
+            if row[r] <= i or (r > 0 and row[r] == row[r - 1]):
                 continue
             rows[m], cols[m] = i, row[r]
             m += 1

@@ -5,10 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .errors import OctreeInputError
 from .geometry import eigenvector, symmetric_eigen
+from .knn import nearest
 from .octree import Normalization
 from .orient import covariances, neighbour_graph, propagate_signs, spanning_tree, stable_order
 
@@ -159,8 +159,7 @@ def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
     n = len(points)
     k = int(min(k, n))
     points = np.ascontiguousarray(points, dtype=np.float64)
-    _, nn = cKDTree(points).query(points, k=k, workers=-1)
-    nn = np.ascontiguousarray(nn.reshape(n, k), dtype=np.int64)
+    nn = nearest(points, k)
     cov = covariances(points, nn)
     normals = eigenvector(cov, symmetric_eigen(cov)[2])
     if k < 2:

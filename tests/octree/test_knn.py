@@ -1,0 +1,70 @@
+"""The grid k-nearest-neighbour search: exactly cKDTree's answer, ties included."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from model.data import generate, scan
+from model.octree import knn
+from model.octree.knn import _grid_nearest, nearest
+
+
+def reference(points: np.ndarray, k: int) -> np.ndarray:
+    return cKDTree(points).query(points, k=k)[1].reshape(len(points), k)
+
+
+def clouds() -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(3)
+    lattice = np.stack(np.meshgrid(*[np.arange(12.0)] * 3), -1).reshape(-1, 3)
+    return {
+        "scan with tied distances": scan(generate("airplane", 7), resolution=128)[0][::2].astype(np.float64),
+        "random volume": rng.random((6000, 3)),
+        "sphere surface": (lambda p: p / np.linalg.norm(p, axis=1, keepdims=True))(rng.normal(size=(8000, 3))),
+        "duplicated points": np.repeat(rng.random((1500, 3)), 3, axis=0),
+        "lattice": lattice,
+        "far cluster": np.concatenate([rng.random((3000, 3)), 1e4 + rng.random((20, 3))]),
+    }
+
+
+@pytest.mark.parametrize("name", list(clouds()))
+def test_the_neighbours_are_cKDTree_s(name):
+    points = clouds()[name]
+    assert np.array_equal(nearest(points, 16), reference(points, 16))
+
+
+def test_one_thread_and_two_agree_and_k_spans_1_to_n():
+    points = clouds()["scan with tied distances"]
+    assert np.array_equal(nearest(points, 16, threads=1), nearest(points, 16, threads=2))
+    small = points[:9]
+    for k in (1, 2, 9):
+        assert np.array_equal(nearest(small, k), reference(small, k))
+
+
+def test_the_grid_search_orders_ties_by_index_and_flags_them():
+    """Brute force over a cloud full of ties (a lattice with duplicates): the grid's rows are the
+    (distance, index) order, and exactly the rows with two equal distances are flagged."""
+    lattice = np.stack(np.meshgrid(*[np.arange(6.0)] * 3), -1).reshape(-1, 3)
+    points = np.concatenate([lattice, lattice[::7], np.random.default_rng(0).random((40, 3)) * 5])
+    k = 10
+    found, tied = _grid_nearest(points, k, threads=2)
+    d = ((points[:, None] - points[None]) ** 2).sum(-1)
+    for i in range(len(points)):
+        want = np.lexsort((np.arange(len(points)), d[i]))[:k]
+        assert np.array_equal(found[i], want)
+        assert tied[i] == bool((np.diff(d[i, want]) == 0).any())
+    assert tied.any() and not tied.all()
+
+
+def test_a_cloud_mostly_tied_is_answered_by_the_tree(monkeypatch):
+    """Above the tied share the whole cloud goes to cKDTree; below it only the tied rows."""
+    points = clouds()["lattice"]
+    assert np.array_equal(nearest(points, 8), reference(points, 8))
+    monkeypatch.setattr(knn, "TIED_SHARE", 1.0)
+    assert np.array_equal(nearest(points, 8), reference(points, 8))
+
+
+def test_k_out_of_range_is_refused():
+    with pytest.raises(ValueError, match="k must be in 1..5"):
+        nearest(np.random.default_rng(0).random((5, 3)), 6)
