@@ -245,27 +245,6 @@ class PatchProbes:
         # (foot + g_i u) + g_j v, in this order (the rounding of the whole grid's layout)
         return np.stack([self.foot[m, c] + gi * self.u[m, c] + gj * self.v[m, c] for c in range(3)])
 
-    def edge_uv(self, sel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """In-plane coordinates of the boundary probes ``sel``, and the unit direction into the
-        patch across each probe's edge (towards the patch's vertex mean on a zero-length edge)."""
-        t = np.arange(self.per_edge) / self.per_edge
-        ends, out = [], []
-        for axis in (self.u, self.v):
-            ax = axis[self.edge_poly]
-            wa, wb = (np.einsum("ij,ij->i", end, ax) for end in (self.edge_a, self.edge_b))
-            ends.append((wa, wb))
-            out.append((wa[:, None] + t[None, :] * (wb - wa)[:, None]).ravel()[sel])
-        (ua, ub), (va, vb) = ends
-        # Polygons run counter-clockwise about n = u x v: the inside is left of each edge.
-        iu, iv = va - vb, ub - ua
-        n_edges = np.maximum(np.bincount(self.edge_poly), 1)
-        flat = (iu == 0) & (iv == 0)
-        iu = np.where(flat, (np.bincount(self.edge_poly, ua) / n_edges)[self.edge_poly] - ua, iu)
-        iv = np.where(flat, (np.bincount(self.edge_poly, va) / n_edges)[self.edge_poly] - va, iv)
-        length = np.maximum(np.hypot(iu, iv), 1e-300)
-        edge = sel // self.per_edge
-        return out[0], out[1], (iu / length)[edge], (iv / length)[edge]
-
     def edge_points(self, sel: np.ndarray) -> np.ndarray:
         """Coordinates (3, len(sel)) of the boundary probes ``sel`` (in edge-by-edge order)."""
         edge, j = np.divmod(sel, self.per_edge)

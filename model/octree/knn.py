@@ -19,6 +19,8 @@ from scipy.spatial import cKDTree
 
 MAX_CELLS_PER_AXIS = 128
 """The grid's resolution is capped so that its cell table stays a few megabytes."""
+CELLS_PER_POINT = 2
+"""The grid holds at most this many cells per point (all cells are counted, most are empty)."""
 FILL = 0.5
 """The grid aims at ``FILL * k`` points per occupied cell: the k nearest then mostly lie within
 the point's cell and the 26 around it, and few of those 27 cells' points are not among them."""
@@ -34,7 +36,7 @@ def _grid(pts: np.ndarray, lo: np.ndarray, extent: float, k: int) -> tuple[float
     coarsened once if the points fill a volume (a solid cloud) and the cells come out too sparse."""
     n = len(pts)
     want = FILL * k
-    g = int(np.clip(np.sqrt(n / want), 1, MAX_CELLS_PER_AXIS))
+    g = int(np.clip(min(np.sqrt(n / want), np.cbrt(CELLS_PER_POINT * n)), 1, MAX_CELLS_PER_AXIS))
     cell = extent / g if extent > 0 else 1.0
     order, start = _bucket(pts, lo, cell, g)
     per_cell = n / max(int(np.count_nonzero(np.diff(start))), 1)
@@ -68,19 +70,21 @@ def _bucket(points: np.ndarray, lo: np.ndarray, cell: float, g: int) -> tuple[np
 
 
 @numba.njit(cache=True, nogil=True)
-def _query(points: np.ndarray, first: int, last: int, k: int, order: np.ndarray, start: np.ndarray,
-           lo: np.ndarray, cell: float, g: int, out: np.ndarray, tied: np.ndarray) -> None:
-    """The ``k`` nearest (ties by index) of the points ``order[first:last]``, written into rows
-    ``order[first:last]`` of ``out``, and whether two of their distances are equal into ``tied``;
-    ``points`` are sorted by cell (``points[s]`` is the input's ``order[s]``)."""
+def _query(points: np.ndarray, order: np.ndarray, start: np.ndarray, lo: np.ndarray, cell: float, g: int,
+           queries: np.ndarray, rows: np.ndarray, first: int, last: int, k: int, found: np.ndarray,
+           dist2: np.ndarray, tied: np.ndarray) -> None:
+    """The ``k`` nearest points (ties by index) of ``queries[first:last]`` (each inside the
+    grid's box), their squared distances, and whether two of those are equal, into rows
+    ``rows[first:last]`` of ``found``, ``dist2`` and ``tied``; ``points`` are sorted by cell
+    (``points[s]`` is the input's ``order[s]``)."""
     best_d = np.empty(k)
     best_i = np.empty(k, np.int64)
     c = np.empty(3, np.int64)
     for i in range(first, last):
-        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        x, y, z = queries[i, 0], queries[i, 1], queries[i, 2]
         for a in range(3):
-            c[a] = min(max(int((points[i, a] - lo[a]) / cell), 0), g - 1)
-        found = 0
+            c[a] = min(max(int((queries[i, a] - lo[a]) / cell), 0), g - 1)
+        n_found = 0
         r = 0
         while True:
             for cx in range(max(c[0] - r, 0), min(c[0] + r, g - 1) + 1):
@@ -95,34 +99,36 @@ def _query(points: np.ndarray, first: int, last: int, k: int, order: np.ndarray,
                             dy = y - points[s, 1]
                             dz = z - points[s, 2]
                             d = dx * dx + dy * dy + dz * dz
-                            if found == k and (d > best_d[k - 1] or (d == best_d[k - 1] and j > best_i[k - 1])):
+                            if n_found == k and (d > best_d[k - 1] or (d == best_d[k - 1] and j > best_i[k - 1])):
                                 continue
-                            p = found if found < k else k - 1
+                            p = n_found if n_found < k else k - 1
                             while p > 0 and (best_d[p - 1] > d or (best_d[p - 1] == d and best_i[p - 1] > j)):
                                 best_d[p] = best_d[p - 1]
                                 best_i[p] = best_i[p - 1]
                                 p -= 1
                             best_d[p] = d
                             best_i[p] = j
-                            if found < k:
-                                found += 1
-            # Distance from the point to the outside of the cells visited so far (inf: all of them).
+                            if n_found < k:
+                                n_found += 1
+            # Distance from the query to the outside of the cells visited so far (inf: all of them).
             gap = np.inf
             for a in range(3):
                 if c[a] - r > 0:
-                    gap = min(gap, points[i, a] - (lo[a] + (c[a] - r) * cell))
+                    gap = min(gap, queries[i, a] - (lo[a] + (c[a] - r) * cell))
                 if c[a] + r < g - 1:
-                    gap = min(gap, lo[a] + (c[a] + r + 1) * cell - points[i, a])
+                    gap = min(gap, lo[a] + (c[a] + r + 1) * cell - queries[i, a])
             gap *= 1.0 - 1e-9                               # a point binned across a rounding
-            if gap == np.inf or (found == k and best_d[k - 1] < gap * gap):
+            if gap == np.inf or (n_found == k and best_d[k - 1] < gap * gap):
                 break
             r += 1
         tie = False
+        row = rows[i]
         for m in range(k):
-            out[order[i], m] = best_i[m]
+            found[row, m] = best_i[m]
+            dist2[row, m] = best_d[m]
             if m > 0 and best_d[m] == best_d[m - 1]:
                 tie = True
-        tied[order[i]] = tie
+        tied[row] = tie
 
 
 def nearest(points: np.ndarray, k: int, threads: int = THREADS) -> np.ndarray:
@@ -143,24 +149,46 @@ def nearest(points: np.ndarray, k: int, threads: int = THREADS) -> np.ndarray:
     return np.ascontiguousarray(found)
 
 
+def nearest_distances(points: np.ndarray, queries: np.ndarray, k: int, threads: int = 1) -> np.ndarray:
+    """(m, k): the distances from each of ``queries`` (m, 3), points inside the box of ``points``
+    (n, 3), to its ``k`` nearest ``points``, ascending: what ``cKDTree(points).query(queries,
+    k)[0]`` gives, bit for bit (distances do not depend on how ties are ordered)."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    if not 1 <= k <= len(pts):
+        raise ValueError(f"k must be in 1..{len(pts)}, got {k}")
+    _, dist2, _ = _search(pts, np.ascontiguousarray(queries, dtype=np.float64), k, threads)
+    return np.sqrt(dist2)
+
+
 def _grid_nearest(pts: np.ndarray, k: int, threads: int) -> tuple[np.ndarray, np.ndarray]:
-    """(n, k) nearest by the grid search, ties by index, and (n,) whether a row holds a tie."""
-    n = len(pts)
+    """(n, k) nearest of each of ``pts`` among them by the grid search, ties by index, and (n,)
+    whether a row holds a tie."""
+    found, _, tied = _search(pts, pts, k, threads)
+    return found, tied
+
+
+def _search(pts: np.ndarray, queries: np.ndarray, k: int, threads: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The grid search of ``queries`` among ``pts``: (m, k) indices, (m, k) squared distances,
+    (m,) tied; queries in the order of their cells, on ``threads`` threads."""
     lo = pts.min(0)
     extent = float((pts.max(0) - lo).max())
     cell, g, order, start = _grid(pts, lo, extent, k)
     sorted_pts = pts[order]
-    out = np.empty((n, k), np.int64)
-    tied = np.empty(n, np.bool_)
-    bounds = np.linspace(0, n, max(1, min(threads, n)) + 1).astype(np.int64)
-    parts = list(zip(bounds[:-1].tolist(), bounds[1:].tolist()))
+    m = len(queries)
+    # queries that are the points themselves go in cell order (neighbouring queries, neighbouring memory)
+    same = queries is pts
+    q, rows = (sorted_pts, order) if same else (queries, np.arange(len(queries)))
+    found = np.empty((m, k), np.int64)
+    dist2 = np.empty((m, k))
+    tied = np.empty(m, np.bool_)
+    bounds = np.linspace(0, m, max(1, min(threads, m)) + 1).astype(np.int64).tolist()
 
-    def run(part: tuple[int, int]) -> None:
-        _query(sorted_pts, part[0], part[1], k, order, start, lo, cell, g, out, tied)
+    def run(part: int) -> None:
+        _query(sorted_pts, order, start, lo, cell, g, q, rows, bounds[part], bounds[part + 1], k, found, dist2, tied)
 
-    if len(parts) == 1:
-        run(parts[0])
+    if len(bounds) == 2:
+        run(0)
     else:
-        with ThreadPoolExecutor(len(parts)) as pool:
-            list(pool.map(run, parts))
-    return out, tied
+        with ThreadPoolExecutor(len(bounds) - 1) as pool:
+            list(pool.map(run, range(len(bounds) - 1)))
+    return found, dist2, tied

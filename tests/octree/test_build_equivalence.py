@@ -8,7 +8,6 @@ import trimesh
 
 import model.octree.build as build_module
 from model.octree import build_octree
-from model.octree.geometry import plane_basis
 from model.octree.segments import segment_sums
 
 from .conftest import MESH_FILES, mesh_path, mesh_points, sphere_points
@@ -121,74 +120,6 @@ def test_boundary_probes_cover_every_edge_on_the_cube():
     unique = {(p, *np.round(x, 12)) for p, x in zip(probes.edge_patch, pts.T)}
     assert len(unique) == len(live)
     assert np.all(np.linalg.norm(probes.edge_b - probes.edge_a, axis=1) > 1e-9)
-    # in-plane coordinates agree with the 3D points
-    eu, ev, iu, iv = probes.edge_uv(live)
-    u, v = plane_basis(n)
-    pl = probes.edge_patch[live]
-    assert np.allclose(eu, (pts[:, live].T * u[pl]).sum(1), atol=1e-12)
-    assert np.allclose(ev, (pts[:, live].T * v[pl]).sum(1), atol=1e-12)
-    # the inward direction points to the side of the edge where the polygon is
-    mean = np.array([verts[i, :count[i]].mean(0) for i in range(len(n))])
-    cu, cv = (mean * u).sum(1)[pl], (mean * v).sum(1)[pl]
-    assert np.all(iu * (cu - eu) + iv * (cv - ev) > 0)
-    assert np.allclose(np.hypot(iu, iv), 1.0)
-
-
-@pytest.mark.parametrize("scale", [0.25, 0.5, 1.0, 2.0, 4.0])
-def test_probes_proved_covered_have_a_point_of_their_own_octant_within_tolerance(scale):
-    """The invariant behind the shortcut, checked by brute force on random patches: whatever the
-    patch grid proves covered has a point of the same octant within the probe's tolerance (3D
-    distance, height off the plane included); and the shortcut is not vacuous."""
-    from model.octree.geometry import cube_polygons, patch_probes
-    from model.octree.patch_error import _PatchBins
-
-    rng = np.random.default_rng(7)
-    t_count, size, spacing = 60, 1.0, 1.0 / 8
-    normal = rng.normal(size=(t_count, 3))
-    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-    offset = rng.uniform(-0.2, 0.2, t_count)
-    verts, count = cube_polygons(normal, offset, size)
-    probes = patch_probes(normal, offset, verts, count, size, spacing)
-    # points: near each plane (heights up to 0.06), inside the cube, some patches sparse
-    per = rng.integers(20, 400, t_count)
-    owner = np.repeat(np.arange(t_count), per)
-    u, v = plane_basis(normal)
-    a, b = rng.uniform(-0.9, 0.9, (2, len(owner)))
-    h = rng.uniform(-0.06, 0.06, len(owner))
-    p = (-offset[owner, None] * normal[owner] + a[:, None] * u[owner] + b[:, None] * v[owner]
-         + h[:, None] * normal[owner])
-    inside = (np.abs(p) <= 0.5).all(1)
-    p, owner, h = p[inside], owner[inside], h[inside]
-    s = (p * normal[owner]).sum(1) + offset[owner]
-    bins = _PatchBins.of(probes, np.arange(t_count), owner, list(p.T), s, t_count, scale)
-
-    tol0 = rng.uniform(0.12, 0.3, t_count)
-    if scale <= 1:
-        grid_open = bins.grid_uncovered(probes, tol0)
-    else:                           # grid probes go through the window (as the build does)
-        grid_open = bins.uncovered(probes.grid_patch, *probes.grid_uv(np.arange(len(probes.grid))),
-                                   tol0[probes.grid_patch])
-    grid_ok = np.setdiff1d(np.arange(len(probes.grid)), grid_open)
-    gpts = probes.grid_points(grid_ok).T
-    gpatch = probes.grid_patch[grid_ok]
-    live = np.arange(len(probes.edge_patch))
-    eu, ev, iu, iv = probes.edge_uv(live)
-    ep = probes.edge_patch[live]
-    etol = rng.uniform(0.1, 0.35, len(live))
-    edge_open = bins.uncovered(ep, eu, ev, etol, centre_u=eu + iu * bins.cell,
-                               centre_v=ev + iv * bins.cell)
-    edge_ok = np.setdiff1d(np.arange(len(live)), edge_open)
-    epts = probes.edge_points(live[edge_ok]).T
-
-    def nearest(q, patch):
-        return np.array([np.linalg.norm(p[owner == t] - x, axis=1).min(initial=np.inf)
-                         for x, t in zip(q, patch)])
-
-    assert np.all(nearest(gpts, gpatch) <= tol0[gpatch] * (1 + 1e-9))
-    assert np.all(nearest(epts, ep[edge_ok]) <= etol[edge_ok] * (1 + 1e-9))
-    assert len(grid_ok) > 0.1 * len(probes.grid) and len(edge_ok) > 0.1 * len(live)
-    # and some probes are left for the k-d tree (sparse patches, small tolerances)
-    assert len(grid_open) > 0 and len(edge_open) > 0
 
 
 def test_no_sampling_gap_gives_finite_errors_and_the_same_octree():
