@@ -17,6 +17,8 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .geometry import bounding_box
+
 MAX_CELLS_PER_AXIS = 128
 """The grid's resolution is capped so that its cell table stays a few megabytes."""
 CELLS_PER_POINT = 2
@@ -170,8 +172,8 @@ def _grid_nearest(pts: np.ndarray, k: int, threads: int) -> tuple[np.ndarray, np
 def _search(pts: np.ndarray, queries: np.ndarray, k: int, threads: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The grid search of ``queries`` among ``pts``: (m, k) indices, (m, k) squared distances,
     (m,) tied; queries in the order of their cells, on ``threads`` threads."""
-    lo = pts.min(0)
-    extent = float((pts.max(0) - lo).max())
+    lo, hi = bounding_box(pts)
+    extent = float((hi - lo).max())
     cell, g, order, start = _grid(pts, lo, extent, k)
     sorted_pts = pts[order]
     m = len(queries)
@@ -192,3 +194,95 @@ def _search(pts: np.ndarray, queries: np.ndarray, k: int, threads: int) -> tuple
         with ThreadPoolExecutor(len(bounds) - 1) as pool:
             list(pool.map(run, range(len(bounds) - 1)))
     return found, dist2, tied
+
+
+@numba.njit(cache=True, nogil=True)
+def _within(points: np.ndarray, order: np.ndarray, start: np.ndarray, lo: np.ndarray, cell: float, g: int,
+            queries: np.ndarray, radius: float, first_only: bool, dist2: np.ndarray, index: np.ndarray,
+            tied: np.ndarray) -> None:
+    """Per query, the nearest of ``points`` (sorted by cell, ``points[s]`` the input's
+    ``order[s]``) nearer than ``radius`` (squared distance below ``radius * radius`` and distance
+    below ``radius``): its squared distance (inf: none), index (``len(order)``: none) and whether
+    another point lies at the same distance; with ``first_only``, the first found (a hit)."""
+    n = len(order)
+    r2 = radius * radius
+    reach = radius * (1.0 + 1e-9) + 1e-300      # the cells a point within the radius can be binned in
+    lo_c = np.empty(3, np.int64)
+    hi_c = np.empty(3, np.int64)
+    for i in range(len(queries)):
+        x, y, z = queries[i, 0], queries[i, 1], queries[i, 2]
+        empty = False
+        for a in range(3):
+            lo_c[a] = max(int(np.floor((queries[i, a] - reach - lo[a]) / cell)), 0)
+            hi_c[a] = min(int(np.floor((queries[i, a] + reach - lo[a]) / cell)), g - 1)
+            if lo_c[a] > hi_c[a]:
+                empty = True
+        best, best_j, tie = np.inf, n, False
+        if not empty:
+            done = False
+            for cx in range(lo_c[0], hi_c[0] + 1):
+                for cy in range(lo_c[1], hi_c[1] + 1):
+                    for cz in range(lo_c[2], hi_c[2] + 1):
+                        cid = (cx * g + cy) * g + cz
+                        for s in range(start[cid], start[cid + 1]):
+                            dx = x - points[s, 0]
+                            dy = y - points[s, 1]
+                            dz = z - points[s, 2]
+                            d2 = dx * dx + dy * dy + dz * dz
+                            if d2 >= r2 or not np.sqrt(d2) < radius:
+                                continue
+                            if d2 < best:
+                                best, best_j, tie = d2, order[s], False
+                                if first_only:
+                                    done = True
+                                    break
+                            elif d2 == best:
+                                tie = True
+                        if done:
+                            break
+                    if done:
+                        break
+                if done:
+                    break
+        dist2[i], index[i], tied[i] = best, best_j, tie
+
+
+class NeighbourGrid:
+    """``points`` (n, 3) on a uniform grid of at most ``CELLS_PER_POINT`` cells per point, for
+    queries within a radius (:meth:`hits`, :meth:`nearest`): what ``cKDTree(points).query(q,
+    distance_upper_bound=radius)`` answers, bit for bit."""
+
+    def __init__(self, points: np.ndarray) -> None:
+        self.points = np.ascontiguousarray(points, dtype=np.float64)
+        n = len(self.points)
+        self.lo, hi = bounding_box(self.points)
+        extent = float((hi - self.lo).max())
+        self.g = int(np.clip(np.cbrt(CELLS_PER_POINT * n), 1, MAX_CELLS_PER_AXIS))
+        self.cell = extent / self.g if extent > 0 else 1.0
+        self.order, self.start = _bucket(self.points, self.lo, self.cell, self.g)
+        self.sorted = self.points[self.order]
+        self._tree = None
+
+    def _ask(self, queries: np.ndarray, radius: float, first_only: bool):
+        q = np.ascontiguousarray(queries, dtype=np.float64)
+        dist2, index, tied = np.empty(len(q)), np.empty(len(q), np.int64), np.empty(len(q), np.bool_)
+        _within(self.sorted, self.order, self.start, self.lo, self.cell, self.g, q, float(radius), first_only,
+                dist2, index, tied)
+        return dist2, index, tied
+
+    def hits(self, queries: np.ndarray, radius: float) -> np.ndarray:
+        """(m,) bool: whether the k-d tree's nearest distance of each query, asked with
+        ``distance_upper_bound=radius``, is below ``radius``."""
+        return np.isfinite(self._ask(queries, radius, True)[0])
+
+    def nearest(self, queries: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """(distances, indices) of each query's nearest point within ``radius``: inf and n where
+        none is, as the k-d tree gives them; queries whose nearest is tied are asked of it."""
+        dist2, index, tied = self._ask(queries, radius, False)
+        dist = np.sqrt(dist2)
+        if tied.any():
+            rows = np.flatnonzero(tied)
+            if self._tree is None:
+                self._tree = cKDTree(self.points)
+            dist[rows], index[rows] = self._tree.query(np.asarray(queries)[rows], distance_upper_bound=radius)
+        return dist, index

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import OctreeInputError
-from .geometry import eigenvector, symmetric_eigen
+from .geometry import bounding_box, eigenvector, symmetric_eigen
 from .knn import nearest
 from .octree import Normalization
 from .orient import covariances, neighbour_graph, propagate_signs, spanning_tree, stable_order
@@ -111,12 +111,6 @@ def validate(points: np.ndarray, normals: np.ndarray | None, drop_strays: bool =
             f"{int(zero.sum())} normal(s) have zero length (first at row {int(np.flatnonzero(zero)[0])}); "
             "give unit normals or omit normals to have them estimated")
     return PointCloud(pts, nrm / length[:, None], strays)
-
-
-def bounding_box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-axis minimum and maximum of (N, 3) points (reduced along contiguous rows: 5x faster)."""
-    t = np.ascontiguousarray(points.T)
-    return t.min(1), t.max(1)
 
 
 def normalization_of(points: np.ndarray) -> Normalization:

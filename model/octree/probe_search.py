@@ -210,13 +210,16 @@ def probe_errors(probes, todo: np.ndarray, centre: np.ndarray, normal: np.ndarra
         _edge_probes(a, b, probes.edge_a, probes.edge_b, probes.edge_poly, probes.per_edge, probes.u, probes.v,
                      centre, shift, edge_tol0, *shared, edge_out)
 
-    jobs = [(grid_part, 0, len(grid_out)), (edge_part, 0, n_edge)]
-    if threads > 1 and len(grid_out) + n_edge >= PARALLEL_PROBES:
-        half = len(grid_out) // 2
-        jobs = [(grid_part, 0, half), (grid_part, half, len(grid_out)), (edge_part, 0, n_edge)]
-        with ThreadPoolExecutor(threads) as pool:
-            list(pool.map(lambda job: job[0](job[1], job[2]), jobs))
+    parts = threads if len(grid_out) + n_edge >= PARALLEL_PROBES else 1
+    cuts = [np.linspace(0, n, parts + 1).astype(np.int64).tolist() for n in (len(grid_out), n_edge)]
+
+    def part(k: int) -> None:                # a share of the grid probes and of the boundary probes
+        grid_part(cuts[0][k], cuts[0][k + 1])
+        edge_part(cuts[1][k], cuts[1][k + 1])
+
+    if parts == 1:
+        part(0)
     else:
-        for job, a, b in jobs:
-            job(a, b)
+        with ThreadPoolExecutor(parts) as pool:
+            list(pool.map(part, range(parts)))
     return grid_out, edge_out

@@ -19,8 +19,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from .geometry import bounding_box
+from .knn import NeighbourGrid
 from .pointcloud import PointCloud
 
 MIN_SUPPORT = 0.85
@@ -72,21 +73,20 @@ def _reflect(points: np.ndarray, axis: int, offset: float) -> np.ndarray:
     return out
 
 
-def _support(points: np.ndarray, tree: cKDTree, axis: int, offset: float, tol: float) -> float:
+def _support(points: np.ndarray, grid: NeighbourGrid, axis: int, offset: float, tol: float) -> float:
     """The support of the plane ``x[axis] = offset`` measured on ``points`` (a subset of the
-    scan in ``tree``)."""
-    dist, _ = tree.query(_reflect(points, axis, offset), distance_upper_bound=tol)
+    scan on ``grid``)."""
+    hit = grid.hits(_reflect(points, axis, offset), tol)
     off_plane = np.abs(points[:, axis] - offset) > 2 * tol        # a point on the plane is its own image
-    return float((dist < tol)[off_plane].mean()) if off_plane.any() else 0.0
+    return float(hit[off_plane].mean()) if off_plane.any() else 0.0
 
 
-def _supports(points: np.ndarray, tree: cKDTree, axis: int, offsets: np.ndarray, tol: float) -> np.ndarray:
-    """:func:`_support` of each plane ``x[axis] = offsets[k]``, every mirror image asked of the
-    tree in one query (the same nearest distances, on both cores)."""
+def _supports(points: np.ndarray, grid: NeighbourGrid, axis: int, offsets: np.ndarray, tol: float) -> np.ndarray:
+    """:func:`_support` of each plane ``x[axis] = offsets[k]``, every mirror image asked at once."""
     images = np.concatenate([_reflect(points, axis, c) for c in offsets])
-    dist = tree.query(images, distance_upper_bound=tol, workers=-1)[0].reshape(len(offsets), len(points))
+    hit = grid.hits(images, tol).reshape(len(offsets), len(points))
     off_plane = np.abs(points[None, :, axis] - offsets[:, None]) > 2 * tol     # a point on the plane is its own image
-    hit = (dist < tol) & off_plane
+    hit &= off_plane
     counted = off_plane.sum(1)
     return np.where(counted > 0, hit.sum(1) / np.maximum(counted, 1), 0.0)
 
@@ -122,7 +122,7 @@ def _coarse_supports(points: np.ndarray, sample: np.ndarray, axis: int, offsets:
     dilated by the tolerance.  A plane offset ``k`` steps from the minimum maps bin ``i`` to bin
     ``2k - i - 1``, so every candidate is one gather."""
     other = [a for a in range(3) if a != axis]
-    lo = points.min(0)
+    lo = bounding_box(points)[0]
     step = float(offsets[1] - offsets[0])
     bins = len(offsets)
 
@@ -157,7 +157,7 @@ def find_mirror(points: np.ndarray, axis: int = 0, tolerance: float = TOLERANCE,
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 3:
         raise ValueError(f"points must be an (N, 3) array with N >= 3, got shape {pts.shape}")
-    lo, hi = pts.min(0), pts.max(0)
+    lo, hi = bounding_box(pts)
     tol = tolerance * float(np.linalg.norm(hi - lo))
     if tol <= 0 or hi[axis] <= lo[axis]:
         return Mirror(axis, float(lo[axis]), 0.0)
@@ -167,11 +167,11 @@ def find_mirror(points: np.ndarray, axis: int = 0, tolerance: float = TOLERANCE,
     if shortlist is not None and shortlist < candidates:
         coarse = _coarse_supports(pts, sub, axis, offsets, tol)
         offsets = offsets[np.argsort(-coarse, kind="stable")[:max(shortlist, 1)]]
-    tree = cKDTree(pts)
-    offset = float(offsets[int(np.argmax(_supports(sub, tree, axis, offsets, tol)))])
+    grid = NeighbourGrid(pts)          # a k-d tree's answers, faster (model.octree.knn)
+    offset = float(offsets[int(np.argmax(_supports(sub, grid, axis, offsets, tol)))])
     for _ in range(5):
         mirrored = _reflect(sub, axis, offset)
-        dist, nearest = tree.query(mirrored, distance_upper_bound=tol)
+        dist, nearest = grid.nearest(mirrored, tol)
         hit = dist < tol
         if hit.sum() < 3:
             break
@@ -179,7 +179,7 @@ def find_mirror(points: np.ndarray, axis: int = 0, tolerance: float = TOLERANCE,
         offset += step
         if abs(step) < 1e-3 * tol:
             break
-    return Mirror(axis, offset, _support(sub, tree, axis, offset, tol), is_sheet(pts, tol))
+    return Mirror(axis, offset, _support(sub, grid, axis, offset, tol), is_sheet(pts, tol))
 
 
 def mirror_cloud(cloud: PointCloud, mirror: Mirror) -> PointCloud:

@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 
 from model.data import generate, scan
 from model.octree import knn
-from model.octree.knn import _grid_nearest, nearest
+from model.octree.knn import NeighbourGrid, _grid_nearest, nearest
 
 
 def reference(points: np.ndarray, k: int) -> np.ndarray:
@@ -68,3 +68,24 @@ def test_a_cloud_mostly_tied_is_answered_by_the_tree(monkeypatch):
 def test_k_out_of_range_is_refused():
     with pytest.raises(ValueError, match="k must be in 1..5"):
         nearest(np.random.default_rng(0).random((5, 3)), 6)
+
+
+@pytest.mark.parametrize("name", ["random volume", "lattice", "duplicated points", "scan with tied distances"])
+def test_queries_within_a_radius_are_cKDTree_s(name):
+    """Nearest within a radius (distances, indices: inf and n where none) and hits, for queries
+    inside, around and far outside the cloud, at radii from below the spacing to above it; the
+    lattice's radius equal to its spacing puts points exactly on the bound."""
+    points = clouds()[name]
+    rng = np.random.default_rng(5)
+    lo, hi = points.min(0), points.max(0)
+    queries = np.concatenate([lo + (hi - lo) * (rng.random((3000, 3)) * 1.4 - 0.2), points[:800],
+                              points[:300] + 0.01 * (hi - lo), [hi + 10 * (hi - lo)]])
+    tree = cKDTree(points)
+    grid = NeighbourGrid(points)
+    spacing = float(np.median(tree.query(points[:500], k=2)[0][:, 1]))
+    for radius in (0.3 * spacing, spacing, 3 * spacing, 0.2 * float((hi - lo).max())):
+        dist, index = tree.query(queries, distance_upper_bound=radius)
+        got = grid.nearest(queries, radius)
+        assert np.array_equal(got[0], dist) and np.array_equal(got[1], index)
+        assert np.array_equal(grid.hits(queries, radius), dist < radius)
+    assert 0 < (dist < np.inf).mean() < 1
