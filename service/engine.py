@@ -22,7 +22,7 @@ from model.octree.batch import merge_octrees, split_octree
 from model.octree.fuse import keep_scan
 from model.octree.geometry import to_y_up, up_rotations
 from model.octree.pointcloud import MIN_SCAN_POINTS, estimate_normals
-from model.octree.symmetry import Mirror, symmetrize
+from model.octree.symmetry import Mirror, find_mirror, symmetrize
 from model.surface import SURFACES, surface_mesh
 
 from .batching import Batcher
@@ -84,10 +84,12 @@ class Engine:
                          for task, fn in ((Task.IMAGE_TO_SHAPE, self.image_batch), (Task.COMPLETION, self.complete_batch))}
 
     def warm_up(self) -> None:
-        """One inference per model (first calls allocate and optimise) and one normal estimation
-        (its kernels compile on their first call: seconds, where no cache was written); then the
-        service is ready."""
+        """One inference per model (first calls allocate and optimise), one normal estimation and
+        one symmetry search (their kernels compile on their first call: seconds, where no cache
+        was written; the octree build's compile with the models' warm-up); then the service is
+        ready."""
         estimate_normals(_sphere(200)[0])
+        find_mirror(_sphere(200)[0])
         for served in self.models.values():
             rt, b = served.runtime, served.bundle
             guide = None

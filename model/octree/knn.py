@@ -11,13 +11,12 @@ which follows its tree, decides the order or even the set) are asked of cKDTree 
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
 from .geometry import bounding_box
+from .parallel import WORKERS, run_parts
 
 MAX_CELLS_PER_AXIS = 128
 """The grid's resolution is capped so that its cell table stays a few megabytes."""
@@ -26,7 +25,7 @@ CELLS_PER_POINT = 2
 FILL = 0.5
 """The grid aims at ``FILL * k`` points per occupied cell: the k nearest then mostly lie within
 the point's cell and the 26 around it, and few of those 27 cells' points are not among them."""
-THREADS = 2
+THREADS = WORKERS
 """Queries split in this many contiguous parts, each in its own thread (the kernel releases the GIL)."""
 TIED_SHARE = 0.2
 """Above this share of rows with tied distances (points on a lattice), cKDTree answers them all."""
@@ -183,16 +182,11 @@ def _search(pts: np.ndarray, queries: np.ndarray, k: int, threads: int) -> tuple
     found = np.empty((m, k), np.int64)
     dist2 = np.empty((m, k))
     tied = np.empty(m, np.bool_)
-    bounds = np.linspace(0, m, max(1, min(threads, m)) + 1).astype(np.int64).tolist()
 
-    def run(part: int) -> None:
-        _query(sorted_pts, order, start, lo, cell, g, q, rows, bounds[part], bounds[part + 1], k, found, dist2, tied)
+    def run(a: int, b: int) -> None:
+        _query(sorted_pts, order, start, lo, cell, g, q, rows, a, b, k, found, dist2, tied)
 
-    if len(bounds) == 2:
-        run(0)
-    else:
-        with ThreadPoolExecutor(len(bounds) - 1) as pool:
-            list(pool.map(run, range(len(bounds) - 1)))
+    run_parts(run, m, threads)
     return found, dist2, tied
 
 

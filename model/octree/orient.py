@@ -16,6 +16,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .parallel import run_parts
+
 
 @numba.njit(cache=True, nogil=True)
 def _pairwise(x: np.ndarray, n: int) -> float:
@@ -39,18 +41,24 @@ def _pairwise(x: np.ndarray, n: int) -> float:
     return total
 
 
-@numba.njit(cache=True, nogil=True)
 def covariances(points: np.ndarray, nn: np.ndarray) -> np.ndarray:
     """(6, n): xx, xy, xz, yy, yz, zz of the covariance (divided by k) of each point's ``nn`` (n, k)
     neighbours ``points[nn[i]]`` about their mean, summed in the order NumPy sums
     ``nb.mean(1)`` (one by one) and ``(d[..., a] * d[..., b]).mean(1)`` (:func:`_pairwise`): the
-    same bits as that NumPy expression."""
-    n, k = nn.shape
-    out = np.empty((6, n))
+    same bits as that NumPy expression.  Rows are shared between the cores."""
+    out = np.empty((6, len(nn)))
+    run_parts(lambda a, b: covariance_rows(points, nn, a, b, out), len(nn))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def covariance_rows(points: np.ndarray, nn: np.ndarray, first: int, last: int, out: np.ndarray) -> None:
+    """Columns ``first:last`` of :func:`covariances`, written into ``out``."""
+    k = nn.shape[1]
     d = np.empty((3, k))
     prod = np.empty(k)
     pairs = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
-    for i in range(n):
+    for i in range(first, last):
         for a in range(3):
             m = 0.0
             for j in range(k):
@@ -63,7 +71,6 @@ def covariances(points: np.ndarray, nn: np.ndarray) -> np.ndarray:
             for j in range(k):
                 prod[j] = d[a, j] * d[b, j]
             out[c, i] = _pairwise(prod, k) / k
-    return out
 
 
 @numba.njit(cache=True, nogil=True)
@@ -91,40 +98,38 @@ def neighbour_graph(nn: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np
     meets each pair's lower entry after its upper one, with the same weight, and rejects it; the
     upper triangle alone gives the same tree with half the edges to sort."""
     n, k = nn.shape
-    incoming = np.zeros(n + 1, np.int64)
-    for i in range(n):
-        for j in range(1, k):
-            incoming[nn[i, j] + 1] += 1
-    start = np.cumsum(incoming)
-    fill = start[:-1].copy()
-    source = np.empty(start[n], np.int64)
+    # every directed edge i -> nn[i, j] filed under the lower of its two ends
+    count = np.zeros(n + 1, np.int64)
     for i in range(n):
         for j in range(1, k):
             t = nn[i, j]
-            source[fill[t]] = i
-            fill[t] += 1
-    rows = np.empty(n * (k - 1) + start[n], np.int64)      # at most; the upper triangle is about half
+            if t != i:
+                count[min(i, t) + 1] += 1
+    start = np.cumsum(count)
+    fill = start[:-1].copy()
+    upper = np.empty(start[n], np.int64)
+    for i in range(n):
+        for j in range(1, k):
+            t = nn[i, j]
+            if t != i:
+                low = min(i, t)
+                upper[fill[low]] = max(i, t)
+                fill[low] += 1
+    rows = np.empty(start[n], np.int64)
     cols = np.empty_like(rows)
     m = 0
-    row = np.empty(k - 1 + (start[1:] - start[:-1]).max(), np.int64)
     for i in range(n):
-        c = 0
-        for j in range(1, k):
-            row[c] = nn[i, j]
-            c += 1
-        for s in range(start[i], start[i + 1]):
-            row[c] = source[s]
-            c += 1
-        for r in range(1, c):                  # insertion sort: a row holds about 2k entries
-            v, q = row[r], r
-            while q > 0 and row[q - 1] > v:
-                row[q] = row[q - 1]
+        a, b = start[i], start[i + 1]
+        for r in range(a + 1, b):              # insertion sort: a row holds about k entries
+            v, q = upper[r], r
+            while q > a and upper[q - 1] > v:
+                upper[q] = upper[q - 1]
                 q -= 1
-            row[q] = v
-        for r in range(c):
-            if row[r] <= i or (r > 0 and row[r] == row[r - 1]):
+            upper[q] = v
+        for r in range(a, b):
+            if r > a and upper[r] == upper[r - 1]:
                 continue
-            rows[m], cols[m] = i, row[r]
+            rows[m], cols[m] = i, upper[r]
             m += 1
     weights = np.empty(m)
     for e in range(m):

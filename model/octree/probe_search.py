@@ -13,17 +13,16 @@ then reads zero whichever point is nearest).
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import numba
 import numpy as np
+
+from .parallel import WORKERS, run_parts, split
 
 SLACK = 1e-9
 """Cube units taken off every in-plane lower bound: far above the rounding of the shifted
 coordinates (1e-11 for 10^4 octants), far below any sampling distance."""
 POINTS_PER_CELL = 4.0
 """Each octant's plane grid aims at this many of its points per cell."""
-THREADS = 2
 PARALLEL_PROBES = 100_000
 """Below this many probes one thread answers them all (a thread pool costs more than it saves)."""
 
@@ -179,7 +178,7 @@ def _edge_probes(first_probe: int, last_probe: int, edge_a: np.ndarray, edge_b: 
 
 def probe_errors(probes, todo: np.ndarray, centre: np.ndarray, normal: np.ndarray, tol0: np.ndarray,
                  edge_tol0: np.ndarray, size: float, moved: np.ndarray, puv: np.ndarray, pstart: np.ndarray,
-                 separation: float, bound: float, threads: int = THREADS) -> tuple[np.ndarray, np.ndarray]:
+                 separation: float, bound: float, threads: int = WORKERS) -> tuple[np.ndarray, np.ndarray]:
     """sqrt(max(d^2 - tol^2, 0)) of every grid probe and every boundary probe of ``probes``
     (:class:`~model.octree.geometry.PatchProbes` of the octants ``todo``, ``centre`` and
     ``normal`` theirs, rows in ``todo`` order), as the k-d tree of :mod:`~model.octree.patch_error`
@@ -211,15 +210,12 @@ def probe_errors(probes, todo: np.ndarray, centre: np.ndarray, normal: np.ndarra
                      centre, shift, edge_tol0, *shared, edge_out)
 
     parts = threads if len(grid_out) + n_edge >= PARALLEL_PROBES else 1
-    cuts = [np.linspace(0, n, parts + 1).astype(np.int64).tolist() for n in (len(grid_out), n_edge)]
+    cuts = [split(n, parts) for n in (len(grid_out), n_edge)]
 
-    def part(k: int) -> None:                # a share of the grid probes and of the boundary probes
-        grid_part(cuts[0][k], cuts[0][k + 1])
-        edge_part(cuts[1][k], cuts[1][k + 1])
+    def shares(first: int, last: int) -> None:    # shares of the grid probes and of the boundary probes
+        for k in range(first, last):
+            grid_part(cuts[0][k], cuts[0][k + 1])
+            edge_part(cuts[1][k], cuts[1][k + 1])
 
-    if parts == 1:
-        part(0)
-    else:
-        with ThreadPoolExecutor(parts) as pool:
-            list(pool.map(part, range(parts)))
+    run_parts(shares, parts, parts)
     return grid_out, edge_out
