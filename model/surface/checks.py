@@ -33,6 +33,8 @@ def is_closed(faces: np.ndarray) -> bool:
     """Every directed edge appears once and its reverse once: closed and consistently wound."""
     if not len(faces):
         return True
+    if (np.bincount(faces.ravel()) == 1).any():     # a vertex of one face: its two edges there are open
+        return False                                # (a patch mesh, at once, without the sort)
     n = int(faces.max()) + 1
     a = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2]]).astype(np.int64)
     b = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]]).astype(np.int64)

@@ -18,6 +18,9 @@ def test_a_tetrahedron_is_closed_and_every_way_of_breaking_it_is_caught():
     assert not is_closed(np.vstack([TETRA, TETRA[:1, ::-1]]))      # a face and its back: three faces on its edges
     assert not is_closed(np.array([[0, 0, 1], [1, 0, 0]]))         # degenerate edges
     assert is_closed(np.zeros((0, 3), np.int64))
+    assert not is_closed(np.vstack([TETRA, [[4, 5, 6]]]))           # a lone triangle beside it
+    assert not is_closed(np.array([[0, 1, 2], [0, 2, 3]]))          # a fan: its outer vertices in one face
+    assert is_closed(np.array([[0, 1, 2], [0, 2, 1]]))              # two faces back to back: closed, each vertex in two
 
 
 def test_two_tetrahedra_on_one_vertex_are_closed_but_not_a_manifold():
