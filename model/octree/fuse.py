@@ -132,16 +132,18 @@ def _children(tree: Octree, depth: int, side: _Side, child_key: np.ndarray, live
     n = len(side.kind)
     up = np.repeat(np.arange(n), 8)
     lv = tree.levels[depth]
-    nodes = side.kind[up] == SPLIT
+    kind_up = np.repeat(side.kind, 8)
+    nodes = kind_up == SPLIT
     rows = np.full(8 * n, -1, np.int64)
-    rows[nodes] = lv.child[side.row[up[nodes]]].astype(np.int64) * 8 + np.tile(np.arange(8), n)[nodes]
-    out = _Side(np.full(8 * n, EMPTY, np.int8), np.full(8 * n, -1, np.int64), side.normal[up].copy(),
-                side.level[up].copy(), side.source[up].copy())
+    slot = np.arange(8 * n) & 7
+    rows[nodes] = lv.child[side.row[up[nodes]]].astype(np.int64) * 8 + slot[nodes]
+    out = _Side(np.full(8 * n, EMPTY, np.int8), np.full(8 * n, -1, np.int64), side.normal[up],
+                np.repeat(side.level, 8), side.source[up])
     if nodes.any():
         own = _node_side(tree.levels[depth + 1], rows[nodes], live, last=last)
         for field in ("kind", "row", "normal", "level", "source"):
             getattr(out, field)[nodes] = getattr(own, field)
-    planes = np.isin(side.kind[up], (LEAF, _CLAIMED))
+    planes = (kind_up == LEAF) | (kind_up == _CLAIMED)
     if planes.any():
         size = 1.0 / (1 << (depth + 1))
         centre = _centres(child_key[planes], size)
@@ -150,7 +152,7 @@ def _children(tree: Octree, depth: int, side: _Side, child_key: np.ndarray, live
         kind = np.where(gap <= reach, LEAF, EMPTY).astype(np.int8)
         if tolerance is not None:
             kind[(kind == EMPTY) & (gap <= reach + tolerance)] = _CLAIMED
-        kind[(kind == LEAF) & (side.kind[up][planes] == _CLAIMED)] = _CLAIMED
+        kind[(kind == LEAF) & (kind_up[planes] == _CLAIMED)] = _CLAIMED
         out.kind[planes] = kind
     return out
 
@@ -187,8 +189,10 @@ def _from_leaves(like: Octree, leaves, neighbors: bool) -> Octree:
     depth = like.depth
     parts = [[np.concatenate(c) for c in zip(*p)] if p else None for p in leaves]
     leaf_keys = [p[0] if p else np.zeros(0, np.uint64) for p in parts]
-    split_keys = [np.unique(np.concatenate([np.zeros(0, np.uint64)] + [
-        morton.parent_keys(leaf_keys[e], e - d) for e in range(d + 1, depth + 1)])) for d in range(depth + 1)]
+    # the ancestors of the leaves, per depth, bottom up: the parents of the next depth's leaves and splits
+    split_keys = [np.zeros(0, np.uint64)] * (depth + 1)
+    for d in range(depth - 1, -1, -1):
+        split_keys[d] = np.unique(morton.parent_keys(np.concatenate([leaf_keys[d + 1], split_keys[d + 1]])))
     levels: list[OctreeLevel] = []
     key = np.zeros(1, np.uint64)
     parent = np.full(1, -1, np.int32)
@@ -205,7 +209,7 @@ def _from_leaves(like: Octree, leaves, neighbors: bool) -> Octree:
                 raise ValueError(f"depth {d}: leaves nest or lie outside the tree")
             label[at] = LEAF
             plane[at], error[at], npoints[at] = planes, errors, counts
-        split = np.isin(key, split_keys[d]) | (d < like.full_depth)
+        split = (morton.lookup(split_keys[d], key) < len(split_keys[d])) | (d < like.full_depth)
         if d == depth:
             split[:] = False
         if np.any(split & (label == LEAF)):
