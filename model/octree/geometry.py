@@ -9,8 +9,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
+
+from .jit import compiled
 
 MAX_POLYGON = 6
 """A plane cuts a cube in a convex polygon of at most 6 vertices."""
@@ -332,7 +333,7 @@ def up_rotations(up: str = "y", count: int = ROTATIONS) -> np.ndarray:
     return np.stack([axis_rotation(2 * np.pi * k / count, up) for k in range(count)])
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def _cube_polygons(normal, offset, size, u, v, corners, edges, edge_start, edge_dir, max_polygon):
     """:func:`cube_polygons` compiled, one plane at a time: the corners on the plane and the edges
     it crosses (tolerance 1e-12 of the cube's side), ordered by their angle about their mean in the

@@ -11,11 +11,11 @@ which follows its tree, decides the order or even the set) are asked of cKDTree 
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
 from .geometry import bounding_box
+from .jit import compiled
 from .parallel import WORKERS, run_parts
 
 MAX_CELLS_PER_AXIS = 128
@@ -48,7 +48,7 @@ def _grid(pts: np.ndarray, lo: np.ndarray, extent: float, k: int) -> tuple[float
     return cell, g, order, start
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def _bucket(points: np.ndarray, lo: np.ndarray, cell: float, g: int) -> tuple[np.ndarray, np.ndarray]:
     """Points sorted by grid cell (counting sort, stable): (order (n,), start (g^3 + 1,))."""
     n = len(points)
@@ -70,7 +70,7 @@ def _bucket(points: np.ndarray, lo: np.ndarray, cell: float, g: int) -> tuple[np
     return order, start
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def _query(points: np.ndarray, order: np.ndarray, start: np.ndarray, lo: np.ndarray, cell: float, g: int,
            queries: np.ndarray, rows: np.ndarray, first: int, last: int, k: int, found: np.ndarray,
            dist2: np.ndarray, tied: np.ndarray) -> None:
@@ -190,7 +190,7 @@ def _search(pts: np.ndarray, queries: np.ndarray, k: int, threads: int) -> tuple
     return found, dist2, tied
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def _within(points: np.ndarray, order: np.ndarray, start: np.ndarray, lo: np.ndarray, cell: float, g: int,
             queries: np.ndarray, radius: float, first_only: bool, dist2: np.ndarray, index: np.ndarray,
             tied: np.ndarray) -> None:

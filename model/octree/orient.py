@@ -13,13 +13,13 @@ SciPy's bit for bit, on clouds with many tied weights too.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from .jit import compiled
 from .parallel import run_parts
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def _pairwise(x: np.ndarray, n: int) -> float:
     """The sum of ``x[:n]`` in NumPy's order for a contiguous reduction (pairwise: below 8
     values one by one; up to 128, eight running sums combined as a tree, the rest one by one)."""
@@ -51,7 +51,7 @@ def covariances(points: np.ndarray, nn: np.ndarray) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def covariance_rows(points: np.ndarray, nn: np.ndarray, first: int, last: int, out: np.ndarray) -> None:
     """Columns ``first:last`` of :func:`covariances`, written into ``out``."""
     k = nn.shape[1]
@@ -73,7 +73,7 @@ def covariance_rows(points: np.ndarray, nn: np.ndarray, first: int, last: int, o
             out[c, i] = _pairwise(prod, k) / k
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def _root(parent: np.ndarray, i: int) -> int:
     while parent[i] != i:
         parent[i] = parent[parent[i]]            # path halving
@@ -81,14 +81,14 @@ def _root(parent: np.ndarray, i: int) -> int:
     return i
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def _weight(normals: np.ndarray, i: int, j: int) -> float:
     """1 - |n_i . n_j| + 1e-6: the same bits for (i, j) and (j, i)."""
     dot = normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2]
     return 1.0 - abs(dot) + 1e-6
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def neighbour_graph(nn: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The k-nearest-neighbour graph made undirected, as the rows, columns and weights
     (:func:`_weight`) of the upper triangle of its symmetric sparse matrix in canonical CSR order
@@ -137,7 +137,7 @@ def neighbour_graph(nn: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np
     return rows[:m], cols[:m], weights
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def stable_order(weights: np.ndarray) -> np.ndarray:
     """``np.argsort(weights, kind="stable")`` of non-negative floats, by a least-significant-digit
     radix sort of their bit patterns (which order as the floats do), 16 bits a pass."""
@@ -161,7 +161,7 @@ def stable_order(weights: np.ndarray) -> np.ndarray:
     return order
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def spanning_tree(n: int, a: np.ndarray, b: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Kruskal's minimum spanning forest of ``n`` nodes: edges ``a[e]``-``b[e]`` taken in
     ``order`` (ascending weight); returns the forest's edges (two arrays)."""
@@ -185,7 +185,7 @@ def spanning_tree(n: int, a: np.ndarray, b: np.ndarray, order: np.ndarray) -> tu
     return ta[:m], tb[:m]
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def propagate_signs(n: int, ta: np.ndarray, tb: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Signs (n,) making ``normals`` consistent along the forest ``ta``-``tb`` (a node's sign is
     its tree parent's, negated where their normals point apart), walked breadth first from the

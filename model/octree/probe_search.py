@@ -13,9 +13,9 @@ then reads zero whichever point is nearest).
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from .jit import compiled
 from .parallel import WORKERS, run_parts, split
 
 SLACK = 1e-9
@@ -27,7 +27,7 @@ PARALLEL_PROBES = 100_000
 """Below this many probes one thread answers them all (a thread pool costs more than it saves)."""
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def _bin(pu: np.ndarray, pv: np.ndarray, pstart: np.ndarray, radius: float,
          cells: np.ndarray, coff: np.ndarray) -> np.ndarray:
     """Each octant's points sorted by cell of its ``cells[t]`` x ``cells[t]`` grid over
@@ -56,7 +56,7 @@ def _bin(pu: np.ndarray, pv: np.ndarray, pstart: np.ndarray, radius: float,
     return order, first
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def _scan_cell(c: int, x: float, y: float, z: float, mx: np.ndarray, my: np.ndarray, mz: np.ndarray,
                order: np.ndarray, first: np.ndarray, best: float, tol2: float, bound2: float) -> tuple[float, bool]:
     """The least squared distance from (x, y, z) to the points of cell ``c`` and ``best``; and
@@ -75,7 +75,7 @@ def _scan_cell(c: int, x: float, y: float, z: float, mx: np.ndarray, my: np.ndar
     return best, False
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def _nearest(t: int, x: float, y: float, z: float, qu: float, qv: float, tol: float,
              mx: np.ndarray, my: np.ndarray, mz: np.ndarray, order: np.ndarray, first: np.ndarray,
              cells: np.ndarray, coff: np.ndarray, radius: float, bound2: float) -> float:
@@ -124,14 +124,14 @@ def _nearest(t: int, x: float, y: float, z: float, qu: float, qv: float, tol: fl
 SQRT2 = np.sqrt(2.0)
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def _probe_tol(tol0: float, boundary: float) -> float:
     """patch_error._probe_tol of one probe, operation for operation."""
     ratio = boundary / tol0 if tol0 > 0 else 1.0
     return tol0 * (SQRT2 - (SQRT2 - 1.0) * min(max(ratio, 0.0), 1.0))
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def _grid_probes(first_probe: int, last_probe: int, grid: np.ndarray, g: np.ndarray, foot: np.ndarray,
                  u: np.ndarray, v: np.ndarray, normal: np.ndarray, centre: np.ndarray, shift: np.ndarray,
                  tol0: np.ndarray, size: float, mx: np.ndarray, my: np.ndarray, mz: np.ndarray,
@@ -155,7 +155,7 @@ def _grid_probes(first_probe: int, last_probe: int, grid: np.ndarray, g: np.ndar
                           tol, mx, my, mz, order, first, cells, coff, radius, bound2)
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def _edge_probes(first_probe: int, last_probe: int, edge_a: np.ndarray, edge_b: np.ndarray,
                  edge_poly: np.ndarray, per_edge: int, u: np.ndarray, v: np.ndarray, centre: np.ndarray,
                  shift: np.ndarray, edge_tol0: np.ndarray, mx: np.ndarray, my: np.ndarray, mz: np.ndarray,
