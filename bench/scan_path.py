@@ -4,9 +4,10 @@ request spends its time, and each fast step against the reference it replaced, i
     python -m bench.scan_path [--scan examples/car_partial_scan.ply] [--repeats 10]
                               [--bundle models/bundles/completion] [--json PATH]
 
-Steps (the service's order): the scan read and validated (its normals estimated), of which the
-k nearest neighbours alone; the symmetry search; the scan's octree (adaptive, neighbour tables);
-encoder; decoder; keep_scan; the patch mesh.  References timed alongside, run by run: the
+Steps (the service's order and settings): the scan read and validated (its normals
+estimated), of which the k nearest neighbours alone; the symmetry search; the scan's octree
+(adaptive, neighbour tables); encoder; decoder (with the bundle's keep_scan bias); keep_scan; the
+patch mesh.  References timed alongside, run by run: the
 neighbours from SciPy's cKDTree (what the grid search returns, bit for bit), and the octree with
 every probe asked of a k-d tree (``certify=False``: the same octree).  Prints the median and the
 worst of ``--repeats`` runs after one warm-up, and the octree target of the request-speed issue
@@ -26,7 +27,7 @@ from scipy.spatial import cKDTree
 from export.bundle import load_bundle
 from export.runtime import Runtime
 from model.cli import command_parser
-from model.octree.batch import merge_octrees
+from model.octree.batch import merge_octrees, split_octree
 from model.octree.build import build_octree
 from model.octree.fuse import keep_scan
 from model.octree.knn import nearest
@@ -59,7 +60,9 @@ def run_once(data: bytes, name: str, rt: Runtime, o) -> dict[str, float]:
     scan = timed("octree", lambda: scan_octree(cloud, o.depth, **settings))
     timed("octree (k-d tree probes, reference)", lambda: _reference_octree(cloud, o.depth, settings))
     latent, guide = timed("encoder", lambda: rt.encode_scan(merge_octrees([scan])))
-    tree = timed("decoder", lambda: rt.decode(latent, guide=guide))
+    # decoded as the service decodes a scan whose own patches it keeps
+    tree = timed("decoder", lambda: split_octree(rt.decode(latent, None, rt.bundle.keep_scan_bias, guide),
+                                                 neighbors=False)[0])
     tree.normalizations = list(scan.normalizations)
     fused = timed("keep_scan", lambda: keep_scan(tree, scan))
     timed("patch mesh", lambda: surface_mesh(fused, "patches"))
@@ -79,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", default=None, help="also write the figures here")
     args = ap.parse_args(argv)
     bundle = load_bundle(args.bundle)
-    rt, o = Runtime(bundle), bundle.octree
+    rt, o = Runtime(bundle, spinning=False), bundle.octree      # as the service runs it
     data = Path(args.scan).read_bytes()
     run_once(data, Path(args.scan).name, rt, o)
     runs = [run_once(data, Path(args.scan).name, rt, o) for _ in range(args.repeats)]
