@@ -1,8 +1,11 @@
-"""Exact k-nearest neighbours of every point of a cloud among the cloud, on a uniform grid
-(compiled with numba): the neighbourhoods of normal estimation, 2-3x faster than SciPy's cKDTree.
+"""Exact nearest neighbours on a uniform grid (compiled with numba), giving what SciPy's cKDTree
+gives in about half its time: the k nearest of every point of a cloud (:func:`nearest`, the
+neighbourhoods of normal estimation), the distances to the k nearest of other points
+(:func:`nearest_distances`, the octree's sampling-spacing estimate) and the nearest within a
+radius (:class:`NeighbourGrid`, the symmetry search).
 
-Invariants: :func:`nearest` returns exactly what ``cKDTree(points).query(points, k)[1]`` returns.
-The grid search (:func:`_query`) finds each point's ``k + 1`` nearest in ascending order of squared
+Invariants: :func:`nearest` returns exactly ``cKDTree(points).query(points, k)[1]``.  The grid
+search (:func:`_query`) finds each point's ``k + 1`` nearest in ascending order of squared
 distance computed as ``dx*dx + dy*dy + dz*dz`` (left to right, as cKDTree computes it), ties by
 index, and stops only when no unvisited cell can hold a point at a distance lower than or equal to
 the last found; rows where two of those distances are equal (where cKDTree's own order of ties,

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .geometry import PatchProbes
 from .jit import compiled
 from .parallel import WORKERS, run_parts, split
 
@@ -29,7 +30,7 @@ PARALLEL_PROBES = 100_000
 
 @compiled
 def _bin(pu: np.ndarray, pv: np.ndarray, pstart: np.ndarray, radius: float,
-         cells: np.ndarray, coff: np.ndarray) -> np.ndarray:
+         cells: np.ndarray, coff: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each octant's points sorted by cell of its ``cells[t]`` x ``cells[t]`` grid over
     [-radius, radius]^2 of its plane: the order (indices into the points) and, per octant, the
     first entry of each cell (``coff[t]`` + cell, one past the end at the last)."""
@@ -176,7 +177,7 @@ def _edge_probes(first_probe: int, last_probe: int, edge_a: np.ndarray, edge_b: 
                           edge_tol0[t], mx, my, mz, order, first, cells, coff, radius, bound2)
 
 
-def probe_errors(probes, todo: np.ndarray, centre: np.ndarray, normal: np.ndarray, tol0: np.ndarray,
+def probe_errors(probes: PatchProbes, todo: np.ndarray, centre: np.ndarray, normal: np.ndarray, tol0: np.ndarray,
                  edge_tol0: np.ndarray, size: float, moved: np.ndarray, puv: np.ndarray, pstart: np.ndarray,
                  separation: float, bound: float, threads: int = WORKERS) -> tuple[np.ndarray, np.ndarray]:
     """sqrt(max(d^2 - tol^2, 0)) of every grid probe and every boundary probe of ``probes``
