@@ -134,12 +134,13 @@ def _probe_tol(tol0: float, boundary: float) -> float:
 
 @compiled
 def _grid_probes(first_probe: int, last_probe: int, grid: np.ndarray, g: np.ndarray, foot: np.ndarray,
-                 u: np.ndarray, v: np.ndarray, normal: np.ndarray, centre: np.ndarray, shift: np.ndarray,
+                 u: np.ndarray, v: np.ndarray, sine: np.ndarray, centre: np.ndarray, shift: np.ndarray,
                  tol0: np.ndarray, size: float, mx: np.ndarray, my: np.ndarray, mz: np.ndarray,
                  order: np.ndarray, first: np.ndarray, cells: np.ndarray, coff: np.ndarray, radius: float,
                  bound2: float, out: np.ndarray) -> None:
     """The grid probes ``grid[first_probe:last_probe]`` (PatchProbes.grid_points, boundary_distance
-    and _probe_tol operation for operation), their values into ``out``."""
+    and _probe_tol operation for operation; ``sine`` (T, 3): boundary_distance's divisors,
+    ``sqrt(max(1 - n_c^2, 1e-12))`` of each octant's normal), their values into ``out``."""
     k = len(g)
     p = np.empty(3)
     for i in range(first_probe, last_probe):
@@ -149,7 +150,7 @@ def _grid_probes(first_probe: int, last_probe: int, grid: np.ndarray, g: np.ndar
         boundary = np.inf
         for c in range(3):
             p[c] = foot[t, c] + gi * u[t, c] + gj * v[t, c]
-            dc = (size / 2.0 - abs(p[c])) / np.sqrt(max(1.0 - normal[t, c] * normal[t, c], 1e-12))
+            dc = (size / 2.0 - abs(p[c])) / sine[t, c]
             boundary = min(boundary, dc)
         tol = _probe_tol(tol0[t], max(boundary, 0.0))
         out[i] = _nearest(t, (p[0] + centre[t, 0]) + shift[t], p[1] + centre[t, 1], p[2] + centre[t, 2], gi, gj,
@@ -195,7 +196,8 @@ def probe_errors(probes: PatchProbes, todo: np.ndarray, centre: np.ndarray, norm
     radius = float(probes.g[-1])
     order, first = _bin(pu, pv, pstart, radius, cells, coff)
     shift = todo * separation
-    centre, normal = np.ascontiguousarray(centre), np.ascontiguousarray(normal)
+    centre = np.ascontiguousarray(centre)
+    sine = np.sqrt(np.maximum(1.0 - np.ascontiguousarray(normal) ** 2, 1e-12))      # boundary_distance's
     grid_out = np.empty(len(probes.grid))
     n_edge = len(probes.edge_poly) * probes.per_edge
     edge_out = np.empty(n_edge)
@@ -203,7 +205,7 @@ def probe_errors(probes: PatchProbes, todo: np.ndarray, centre: np.ndarray, norm
     shared = (mx, my, mz, order, first, cells, coff, radius, bound2)
 
     def grid_part(a: int, b: int) -> None:
-        _grid_probes(a, b, probes.grid, probes.g, probes.foot, probes.u, probes.v, normal, centre, shift, tol0,
+        _grid_probes(a, b, probes.grid, probes.g, probes.foot, probes.u, probes.v, sine, centre, shift, tol0,
                      size, *shared, grid_out)
 
     def edge_part(a: int, b: int) -> None:
