@@ -116,8 +116,7 @@ def _node_side(level: OctreeLevel, rows: np.ndarray, live: np.ndarray, last: boo
         at = rows[leaf]
         n = level.plane[at, :3].astype(np.float64)
         normal[leaf] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-        centre = _centres(level.key[at], level.size)
-        plane_level[leaf] = (normal[leaf] * centre).sum(1) - level.plane_offsets()[at]
+        plane_level[leaf] = (normal[leaf] * level.centers(at)).sum(1) - level.plane_offsets(at)
     source = np.stack([np.full(len(rows), level.depth), rows], 1)
     return _Side(kind, rows.astype(np.int64), normal, plane_level, source)
 

@@ -71,17 +71,19 @@ class OctreeLevel:
     def batch(self) -> np.ndarray:
         return morton.batch_of(self.key)
 
-    def coords(self) -> np.ndarray:
-        """Integer octant coordinates (N, 3) at this depth."""
-        return morton.decode(self.key)[0]
+    def coords(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """Integer octant coordinates (N, 3) at this depth (of the nodes ``rows`` only, if given)."""
+        return morton.decode(self.key if rows is None else self.key[rows])[0]
 
-    def centers(self) -> np.ndarray:
-        """Octant centres (N, 3) in cube units."""
-        return (self.coords() + 0.5) * self.size
+    def centers(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """Octant centres (N, 3) in cube units (of the nodes ``rows`` only, if given)."""
+        return (self.coords(rows) + 0.5) * self.size
 
-    def plane_offsets(self) -> np.ndarray:
-        """Plane offsets relative to the octant centre in cube units: ``n . (x - c) + d = 0``."""
-        return self.plane[:, 3].astype(np.float64) * PLANE_SCALE * self.size
+    def plane_offsets(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """Plane offsets relative to the octant centre in cube units: ``n . (x - c) + d = 0`` (of
+        the nodes ``rows`` only, if given)."""
+        d = self.plane[:, 3] if rows is None else self.plane[rows, 3]
+        return d.astype(np.float64) * PLANE_SCALE * self.size
 
 
 @dataclass

@@ -47,8 +47,8 @@ def leaf_patches(octree: Octree) -> PatchSet:
             continue
         normal = lv.plane[sel, :3].astype(np.float64)
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
-        offset = lv.plane_offsets()[sel]
-        centre = lv.centers()[sel]
+        offset = lv.plane_offsets(sel)
+        centre = lv.centers(sel)
         verts, count = cube_polygons(normal, offset, lv.size)
         parts.append((verts + centre[:, None], count, normal, offset, centre,
                       np.full(len(sel), lv.size), np.full(len(sel), lv.depth),

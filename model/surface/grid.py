@@ -17,7 +17,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..octree import LEAF, Octree
-from ..octree.octree import PLANE_SCALE
 
 PAD = 2
 CORNER_OFFSETS = np.array([[c & 1, c >> 1 & 1, c >> 2 & 1] for c in range(8)])
@@ -51,9 +50,8 @@ def leaves_of(octree: Octree) -> Leaves:
         f = 1 << (octree.depth - lv.depth)
         n = lv.plane[sel, :3].astype(np.float64)
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-        d = lv.plane[sel, 3].astype(np.float64) * PLANE_SCALE * lv.size
-        const = d - np.einsum("ij,ij->i", n, lv.centers()[sel])
-        parts.append((lv.coords()[sel].astype(np.int64) * f, np.full(len(sel), f, np.int64), n, const))
+        const = lv.plane_offsets(sel) - np.einsum("ij,ij->i", n, lv.centers(sel))
+        parts.append((lv.coords(sel).astype(np.int64) * f, np.full(len(sel), f, np.int64), n, const))
     if not parts:
         return Leaves(np.zeros((0, 3), np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
     return Leaves(*[np.concatenate(c) for c in zip(*parts)])
