@@ -3,7 +3,7 @@
 Both builds get the same points (100k area-weighted samples of each mesh, face normals, seed 0)
 and run interleaved (one warm-up, then the median of ``--repeats``), so the machine's drift
 affects both alike.  With ``--equal``, every mesh in ``--mesh-dir`` is built at depths 6-8 by both
-and the labels and delta_O compared; ``--previous-closing-edge`` builds this checkout with the
+and the labels, planes and delta_O compared; ``--previous-closing-edge`` builds this checkout with the
 boundary-probe rule before commit 22afaf2 (see ``bench.octree_label_changes``).
 
     git worktree add ../aocnn-e951434 e951434          # the build before the speed-up
@@ -61,7 +61,7 @@ def timing(other: types.ModuleType, names: list[str], mesh_dir: str, depth: int,
 def equality(other: types.ModuleType, names: list[str], mesh_dir: str, previous_rule: bool) -> int:
     from bench.octree_label_changes import closing_edge_unprobed
 
-    same_builds, builds, worst = 0, 0, 0.0
+    same_builds, same_planes, builds, worst = 0, 0, 0, 0.0
     for name in names:
         pts, nrm = sample_points(os.path.join(mesh_dir, name), 100_000)
         for depth in (6, 7, 8):
@@ -75,10 +75,13 @@ def equality(other: types.ModuleType, names: list[str], mesh_dir: str, previous_
                         for x, y in zip(a.levels, b.levels)
                         for m in [np.isfinite(x.error) & np.isfinite(y.error)] if same and m.any()),
                        default=0.0)
+            planes = same and all(np.array_equal(x.plane, y.plane) for x, y in zip(a.levels, b.levels))
             builds, same_builds, worst = builds + 1, same_builds + same, max(worst, diff)
-            print(f"{name:30s} depth {depth}: labels {'same' if same else 'DIFFER'}, "
-                  f"largest delta_O difference {diff:.1e}", flush=True)
-    print(f"\n{same_builds}/{builds} builds with identical labels; largest delta_O difference {worst:.1e}")
+            same_planes += planes
+            print(f"{name:30s} depth {depth}: labels {'same' if same else 'DIFFER'}, planes "
+                  f"{'same' if planes else 'differ'}, largest delta_O difference {diff:.1e}", flush=True)
+    print(f"\n{same_builds}/{builds} builds with identical labels, {same_planes}/{builds} with identical planes; "
+          f"largest delta_O difference {worst:.1e}")
     return 0 if same_builds == builds else 1
 
 
