@@ -9,7 +9,7 @@ estimated), of which the k nearest neighbours alone; the symmetry search; the sc
 (adaptive, neighbour tables); encoder; decoder (with the bundle's keep_scan bias); keep_scan; the
 patch mesh.  References timed alongside, run by run: the
 neighbours from SciPy's cKDTree (what the grid search returns, bit for bit), and the octree with
-every probe asked of a k-d tree (``certify=False``: the same octree).  Prints the median and the
+every probe asked of a k-d tree (``probe_search=False``: the same octree).  Prints the median and the
 worst of ``--repeats`` runs after one warm-up, and the octree target of the request-speed issue
 (the build at depth 7 on a 20,000-point scan <= 20 ms).
 """
@@ -71,7 +71,7 @@ def run_once(data: bytes, name: str, rt: Runtime, o) -> dict[str, float]:
 
 def _reference_octree(cloud, depth: int, settings: dict):
     """:func:`scan_octree` with every patch->surface probe asked of a k-d tree (the same octree)."""
-    return build_octree(cloud, depth, normalization=scan_frame(cloud.points), certify=False, **settings)
+    return build_octree(cloud, depth, normalization=scan_frame(cloud.points), probe_search=False, **settings)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -45,7 +45,7 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
                  full_depth: int = 2, adaptive_depth: int = 4,
                  neighbors: bool = True, measure_leaves: bool = False,
                  sample_spacing: float | None = None, normalization: Normalization | None = None,
-                 certify: bool = True, timings: dict | None = None) -> Octree:
+                 probe_search: bool = True, timings: dict | None = None) -> Octree:
     """Build the octree of one oriented point cloud.
 
     ``threshold`` is delta hat in finest voxels (paper: sqrt(3)/2).  ``adaptive=False`` gives
@@ -54,8 +54,8 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
     the input samples in input units (estimated when omitted); sampling gaps up to it are not
     counted as patch error.  ``normalization`` fixes the cube frame (default: the points' own
     bounding box, :func:`normalization_of`); points outside that cube are dropped.
-    ``certify=False`` answers every patch->surface probe with the k-d tree instead of first
-    settling those the points binned on the patch grid prove covered (the same octree, slower).
+    ``probe_search=False`` answers every patch->surface probe with a k-d tree instead of the
+    search on each patch's plane (the reference: the same octree, slower).
     ``timings`` receives seconds per build stage.
     """
     timer = StageTimes(timings)
@@ -78,7 +78,7 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
             spacing = (sample_spacing / norm.scale if sample_spacing is not None
                        else _estimate_spacing(pts.T))
         settings = PatchErrorSettings(threshold=threshold * h_fine, gap=spacing, probe_spacing=h_fine)
-    rule = _SplitRule(depth, full_depth, adaptive_depth, adaptive, measure_leaves, certify, settings)
+    rule = _SplitRule(depth, full_depth, adaptive_depth, adaptive, measure_leaves, probe_search, settings)
 
     levels: list[OctreeLevel] = []
     node_key = np.zeros(1, dtype=np.uint64)
@@ -122,7 +122,7 @@ class _SplitRule:
     adaptive_depth: int
     adaptive: bool
     measure_leaves: bool
-    certify: bool
+    probe_search: bool
     settings: PatchErrorSettings | None
 
 
@@ -154,7 +154,7 @@ def _level(lv: int, node_key: np.ndarray, node_ne: np.ndarray, parent: np.ndarra
         split = nonempty.copy()
     else:
         err = patch_errors(pts, nrm, rule.settings, centre, normal, offset, size, mom.start[ne], mom.count[ne],
-                           exact=False, certify=rule.certify, timer=timer)
+                           exact=False, probe_search=rule.probe_search, timer=timer)
         error[nonempty] = err
         split = nonempty.copy()
         split[nonempty] = err > rule.settings.threshold
@@ -167,7 +167,7 @@ def _level(lv: int, node_key: np.ndarray, node_ne: np.ndarray, parent: np.ndarra
         if len(sel):
             error[np.flatnonzero(nonempty)[sel]] = patch_errors(
                 pts, nrm, rule.settings, centre[sel], normal[sel], offset[sel], size,
-                mom.start[ne[sel]], mom.count[ne[sel]], exact=True, certify=rule.certify, timer=timer)
+                mom.start[ne[sel]], mom.count[ne[sel]], exact=True, probe_search=rule.probe_search, timer=timer)
     with timer("structure"):
         child = np.full(n, -1, dtype=np.int32)
         split_idx = np.flatnonzero(split)

@@ -5,7 +5,7 @@ surface->patch is exact per point.  patch->surface is measured at probes laid on
 (:class:`model.octree.geometry.PatchProbes`): each probe's nearest point of its own octant,
 searched on a grid of the patch's plane (:mod:`model.octree.probe_search`); the values are those
 of asking a k-d tree of the octants' points for every probe, the reference kept here
-(``certify=False``; ``tests/octree/test_build_equivalence.py`` holds this).
+(``probe_search=False``; ``tests/octree/test_build_equivalence.py`` holds this).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ class PatchErrorSettings:
 
 def patch_errors(pts: np.ndarray, nrm: np.ndarray, cfg: PatchErrorSettings, centre: np.ndarray,
                  normal: np.ndarray, offset: np.ndarray, size: float, start: np.ndarray,
-                 count: np.ndarray, *, exact: bool, certify: bool = True, timer=None) -> np.ndarray:
+                 count: np.ndarray, *, exact: bool, probe_search: bool = True, timer=None) -> np.ndarray:
     """Hausdorff distance between each octant's planar patch and its points (paper's delta_O).
 
     surface->patch: exact point-to-polygon distance of every point of the octant, plus the gap
@@ -47,9 +47,9 @@ def patch_errors(pts: np.ndarray, nrm: np.ndarray, cfg: PatchErrorSettings, cent
     probes farther than hypot(threshold, tol) read infinite.  Points and normals are rows
     (3, N) sorted so that octant i owns columns ``start[i] .. start[i] + count[i] - 1``.
 
-    With ``certify`` (the default), each probe's nearest point is searched on a grid of its
+    With ``probe_search`` (the default), each probe's nearest point is searched on a grid of its
     patch's plane (:mod:`model.octree.probe_search`), with the k-d tree's distances bit for bit;
-    ``certify=False`` asks the k-d tree (the reference, slower).
+    ``probe_search=False`` asks the k-d tree (the reference, slower).
     """
     timer = timer or StageTimes(None)
     m = len(normal)
@@ -57,7 +57,7 @@ def patch_errors(pts: np.ndarray, nrm: np.ndarray, cfg: PatchErrorSettings, cent
     with timer("patch polygons"):
         verts, nvert = cube_polygons(normal, offset, size)
     with timer("error surface->patch"):
-        err, local, s, idx = _surface_to_patch(pts, nrm, cfg, centre, normal, offset, size, start, count, owner, verts)
+        err, local, idx = _surface_to_patch(pts, nrm, cfg, centre, normal, offset, size, start, count, owner, verts)
     todo = np.arange(m) if exact else np.flatnonzero(err <= cfg.threshold)
     if len(todo) == 0:
         return err
@@ -73,7 +73,7 @@ def patch_errors(pts: np.ndarray, nrm: np.ndarray, cfg: PatchErrorSettings, cent
         # Boundary probes lie on the cube's faces (distance 0 to the boundary, exactly).
         edge_tol0 = _probe_tol(tol0, np.zeros(len(todo)))
     bound = np.inf if exact else float(np.hypot(cfg.threshold, edge_tol0.max()))
-    if certify:
+    if probe_search:
         with timer("probes searched"):
             _probes_searched(err, pts, idx, start, count, probes, todo, local, tol0, edge_tol0, centre, normal,
                              size, bound)
@@ -122,7 +122,7 @@ def _surface_to_patch(pts, nrm, cfg: PatchErrorSettings, centre, normal, offset,
                       verts):
     """surface->patch of every octant (its points' largest distance to its polygon, each point's
     sampling gap extrapolated along its own tangent plane), and what the probes reuse: the points
-    in their octants' local frames, their signed distances to the planes, their column indices."""
+    in their octants' local frames and their column indices."""
     idx = concat_ranges(start, count)
     whole = len(idx) == pts.shape[1]          # every point, in order: no gather needed
     nx, ny, nz, cx, cy, cz, off = (np.repeat(c, count) for c in (*normal.T, *centre.T, offset))
@@ -145,13 +145,14 @@ def _surface_to_patch(pts, nrm, cfg: PatchErrorSettings, centre, normal, offset,
     cos = nn[0] * nx + nn[1] * ny
     cos += nn[2] * nz
     dist += cfg.gap * np.sqrt(np.maximum(1.0 - cos * cos, 0.0))
-    return np.maximum.reduceat(dist, np.cumsum(count) - count), local, s, idx
+    return np.maximum.reduceat(dist, np.cumsum(count) - count), local, idx
 
 
 def _probes_in_tree(err, pts, idx, owner, probes: PatchProbes, todo, grid_open, edge_open, tol0, edge_tol0, centre,
                     normal, size: float, bound: float) -> None:
-    """patch->surface of the probes not settled on the patch grid, by the k-d tree of each
-    octant's points, folded into ``err`` (probes farther than ``bound`` read infinite)."""
+    """patch->surface of the probes ``grid_open`` and ``edge_open`` by the k-d tree of each
+    octant's points (the reference), folded into ``err`` (probes farther than ``bound`` read
+    infinite)."""
     patch, tol, query = _probe_queries(probes, grid_open, edge_open, todo, tol0, edge_tol0, centre, normal, size)
     if len(patch):
         oct_id = todo[patch]

@@ -15,8 +15,8 @@ from model.octree.geometry import MAX_POLYGON, cube_polygons, plane_basis, polyg
 
 
 def reference_patch_errors(pts, nrm, cfg, centre, normal, offset, size, start, count, *,
-                           exact, certify=True, timer=None):
-    """Same contract as ``patch_errors`` (points as rows (3, N)); ``certify`` is ignored."""
+                           exact, probe_search=True, timer=None):
+    """Same contract as ``patch_errors`` (points as rows (3, N)); ``probe_search`` is ignored."""
     pts, nrm = pts.T, nrm.T
     m = len(normal)
     if m == 0:

@@ -74,7 +74,7 @@ def test_fast_build_matches_the_plain_formulation_on_generated_shapes(make, dept
     fast = build_octree(cloud, depth)
     assert_same(fast, reference_build(cloud, depth))
     # the grid-settled probes are not a different answer, only a shortcut
-    assert_same(fast, build_octree(cloud, depth, certify=False))
+    assert_same(fast, build_octree(cloud, depth, probe_search=False))
 
 
 def test_fast_build_matches_with_leaf_measurement_and_other_settings():

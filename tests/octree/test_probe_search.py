@@ -45,7 +45,7 @@ def test_the_plane_grid_search_reads_what_the_k_d_tree_reads(seed, exact):
     cfg = PatchErrorSettings(threshold=0.15 * size, gap=0.03 * size, probe_spacing=size / 12)
     args = (pts, nrm, cfg, centre, normal, offset, size, start, count)
     searched = patch_errors(*args, exact=exact)
-    tree = patch_errors(*args, exact=exact, certify=False)
+    tree = patch_errors(*args, exact=exact, probe_search=False)
     assert np.array_equal(searched, tree)
     # every path is taken: probes read zero, positive, and (with a bound) infinite
     assert (searched > 0).any() and np.isfinite(searched).any()
@@ -61,7 +61,7 @@ def test_the_probes_decide_these_cases(monkeypatch):
     size = 1.0 / 16
     cfg = PatchErrorSettings(threshold=0.15 * size, gap=0.03 * size, probe_spacing=size / 12)
     args = (pts, nrm, cfg, centre, normal, offset, size, start, count)
-    tree = patch_errors(*args, exact=True, certify=False)
+    tree = patch_errors(*args, exact=True, probe_search=False)
     real = patch_error.probe_errors
 
     def zeros(*a, **k):
