@@ -7,8 +7,9 @@ Invariants: every function is a pure function of its arrays; :func:`covariances`
 neighbours' order as NumPy does, :func:`spanning_tree` takes edges in the order given (ascending
 weight), and :func:`propagate_signs` walks from the lowest-numbered point of each connected part.
 The graph's edges, their weights and their order are those SciPy's ``minimum_spanning_tree``
-took (the symmetric matrix's data in CSR order, stably sorted), so the tree and the normals are
-SciPy's bit for bit, on clouds with many tied weights too.
+took (the symmetric matrix's data in CSR order, stably sorted), less each pair's second entry,
+which Kruskal's walk rejects (:func:`neighbour_graph`), so the tree and the normals are SciPy's
+bit for bit, on clouds with many tied weights too.
 """
 
 from __future__ import annotations

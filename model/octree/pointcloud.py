@@ -147,8 +147,8 @@ def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
 
     Orientation follows Hoppe et al.: signs propagate along a minimum spanning tree of the kNN
     graph weighted by 1 - |n_i . n_j|; each connected part is then flipped so that most of its
-    normals point away from its centroid.  The covariances, the tree and the walk along it are
-    compiled (:mod:`model.octree.orient`).
+    normals point away from its centroid.  The neighbours (:mod:`model.octree.knn`), the
+    covariances, the tree and the walk along it are compiled (:mod:`model.octree.orient`).
     """
     n = len(points)
     k = int(min(k, n))
