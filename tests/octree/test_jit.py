@@ -31,3 +31,53 @@ def test_a_read_only_install_caches_in_the_temporary_directory():
 def test_a_writable_install_and_a_chosen_folder_are_left_alone():
     assert cache_dir(False, None) == ""
     assert cache_dir(True, "/somewhere/else") == "/somewhere/else"
+
+
+FUSED = ("vfmadd", "vfmsub", "vfnmadd", "vfnmsub", "fmadd", "fmsub", "fmla", "fmls")
+"""Fused multiply-add instructions (x86 FMA3, AArch64): one rounding where the k-d tree and NumPy
+round twice."""
+KERNELS = """
+import numba, numpy as np, warnings
+warnings.simplefilter("ignore")
+from model.octree import build_octree, geometry, knn, orient, probe_search
+from model.octree.pointcloud import estimate_normals
+from model.octree.symmetry import find_mirror
+p = np.random.default_rng(0).random((3000, 3))
+estimate_normals(p); find_mirror(p); build_octree((p, None), 6)
+
+@numba.njit(fastmath=True)
+def contracted(a, b, c):      # the detector's own check: asked to, the compiler fuses this
+    s = 0.0
+    for i in range(len(a)):
+        s += a[i] * b[i] + c[i]
+    return s
+
+x = np.ones(8)
+contracted(x, x, x)
+kernels = [f for m in (knn, probe_search, orient, geometry) for f in vars(m).values() if hasattr(f, "inspect_asm")]
+for f in kernels + [contracted]:
+    for sig in f.signatures:
+        print("=== " + f.py_func.__name__)
+        print(f.inspect_asm(sig).lower())
+"""
+
+
+def test_no_kernel_fuses_a_multiply_and_an_add(tmp_path):
+    """The kernels reproduce the k-d tree's and NumPy's arithmetic bit for bit on any CPU only if
+    the compiler keeps every product rounded before it is added (numba contracts nothing unless
+    asked to); compiled afresh, their machine code holds no fused multiply-add, where a function
+    compiled with fastmath on this CPU does (when the CPU has the instruction)."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}          # a fresh compile: its code can be read
+    out = subprocess.run([sys.executable, "-c", KERNELS], capture_output=True, text=True, cwd=REPO, env=env,
+                         timeout=600)
+    assert out.returncode == 0, out.stderr[-1500:]
+    listings: dict[str, str] = {}
+    for part in out.stdout.split("=== ")[1:]:
+        name, _, asm = part.partition("\n")
+        listings[name] = listings.get(name, "") + asm
+    assert {"_query", "_within", "_grid_probes", "_edge_probes", "covariance_rows", "_cube_polygons"} <= set(listings)
+    fused = {name: [op for op in FUSED if op in asm] for name, asm in listings.items()}
+    assert not any(ops for name, ops in fused.items() if name != "contracted"), fused
+    cpu = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
+    if " fma " in cpu or " asimd" in cpu:                     # the CPU has the instruction: it is seen
+        assert fused["contracted"], "the detector did not see the fused multiply-add it was shown"
