@@ -28,7 +28,11 @@ class Normalization:
     scale: float
 
     def to_world(self, cube: np.ndarray) -> np.ndarray:
-        return (np.asarray(cube, dtype=np.float64) - 0.5) * self.scale + self.center
+        world = np.array(cube, dtype=np.float64)        # a copy, worked on in place: one array, not three
+        world -= 0.5
+        world *= self.scale
+        world += self.center
+        return world
 
     def to_cube(self, world: np.ndarray) -> np.ndarray:
         return (np.asarray(world, dtype=np.float64) - self.center) / self.scale + 0.5

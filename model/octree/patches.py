@@ -84,16 +84,17 @@ class PatchMesh:
 def patch_mesh(octree: Octree, world: bool = True) -> PatchMesh:
     """The leaf patches' triangle mesh, in the input's coordinates (one shape) unless ``world`` is
     False; the arrays every mesh writer starts from."""
+    if world and octree.batch_size != 1:
+        raise ValueError("world coordinates need a single-shape octree; pass world=False")
     patches = leaf_patches(octree)
     verts, faces = patch_triangles(patches)
-    if world:
-        if octree.batch_size != 1:
-            raise ValueError("world coordinates need a single-shape octree; pass world=False")
-        verts = octree.normalizations[0].to_world(verts)
     used = np.flatnonzero((np.arange(MAX_POLYGON)[None] < patches.count[:, None]).ravel())
     remap = np.full(len(verts), -1, np.int64)
     remap[used] = np.arange(len(used))
-    return PatchMesh(np.asarray(verts)[used], remap[faces] if len(faces) else np.zeros((0, 3), np.int64),
+    verts = verts[used]                                  # the padding never reaches the output
+    if world:
+        verts = octree.normalizations[0].to_world(verts)
+    return PatchMesh(verts, remap[faces] if len(faces) else np.zeros((0, 3), np.int64),
                      np.repeat(patches.depth, MAX_POLYGON)[used])
 
 
