@@ -1,5 +1,6 @@
 """The compiled kernels' work shared between cores: they release the GIL, so threads run them in
-parallel.  One pool for the process (a pool started per call costs about a millisecond)."""
+parallel.  One pool per process (a pool started per call costs about a millisecond), made
+afresh in a forked child, whose copy of the parent's pool has no threads behind it."""
 
 from __future__ import annotations
 
@@ -11,7 +12,22 @@ import numpy as np
 
 WORKERS = max(1, min(os.cpu_count() or 1, 4))
 """Threads of the pool, and parts a large job is split into."""
-_POOL = ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="octree-kernel")
+_pool: ThreadPoolExecutor | None = None
+
+
+def _forget_pool() -> None:
+    global _pool
+    _pool = None
+
+
+os.register_at_fork(after_in_child=_forget_pool)
+
+
+def _the_pool() -> ThreadPoolExecutor:
+    global _pool
+    if _pool is None:
+        _pool = ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="octree-kernel")
+    return _pool
 
 
 def split(n: int, parts: int) -> list[int]:
@@ -26,6 +42,6 @@ def run_parts(work: Callable[[int, int], None], n: int, parts: int = WORKERS) ->
     if len(bounds) <= 2:
         work(bounds[0], bounds[-1])
         return
-    futures = [_POOL.submit(work, a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+    futures = [_the_pool().submit(work, a, b) for a, b in zip(bounds[:-1], bounds[1:])]
     for f in futures:
         f.result()

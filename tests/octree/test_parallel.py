@@ -1,0 +1,59 @@
+"""The kernels' thread pool: parts done, errors raised, and a forked child that works."""
+
+from __future__ import annotations
+
+import multiprocessing
+import time
+
+import numpy as np
+import pytest
+
+from model.octree.parallel import run_parts, split
+
+
+def test_every_part_is_done_once():
+    seen = np.zeros(1000, int)
+
+    def work(a: int, b: int) -> None:
+        seen[a:b] += 1
+
+    for n, parts in ((1000, 4), (1000, 1), (3, 8)):
+        seen[:] = 0
+        run_parts(work, n, parts)
+        assert (seen[:n] == 1).all()
+    assert split(10, 3) == [0, 3, 6, 10]
+
+
+def test_an_error_in_a_part_is_raised():
+    def work(a: int, b: int) -> None:
+        if a > 0:
+            raise ValueError("part failed")
+
+    with pytest.raises(ValueError, match="part failed"):
+        run_parts(work, 100, 2)
+
+
+def _child(queue) -> None:
+    out = np.zeros(100, int)
+
+    def work(a: int, b: int) -> None:
+        out[a:b] = 1
+
+    run_parts(work, 100, 2)
+    queue.put(int(out.sum()))
+
+
+def test_a_forked_child_uses_a_pool_of_its_own():
+    """A data loader's worker forked after the parent used the pool: the parent's pool has no
+    threads in the child, which would wait for ever on it."""
+    run_parts(lambda a, b: time.sleep(0.05), 10, 2)      # the parent's pool has both its threads,
+    time.sleep(0.2)                                       # idle by now
+    ctx = multiprocessing.get_context("fork")
+    queue = ctx.Queue()
+    child = ctx.Process(target=_child, args=(queue,))
+    child.start()
+    child.join(30)
+    if child.exitcode is None:
+        child.kill()
+    assert child.exitcode == 0, "the forked child did not finish (a pool without threads)"
+    assert queue.get(timeout=5) == 100
