@@ -109,14 +109,16 @@ def measure(photos: list[tuple[str, Photo]], method: Callable[[np.ndarray], np.n
             "per_photo": [{"category": c, "iou": i, "thin_recall": r} for c, i, r in zip(cats, ious, recalls)]}
 
 
-def compare(data: str, bundle: str, refine: str | None, limit: int | None, with_grabcut: bool) -> dict:
+def compare(data: str, bundle: str, refine: str | None, limit: int | None, with_grabcut: bool,
+            grabcut_side: int = 256, grabcut_iterations: int = 3) -> dict:
     runtime = Runtime(load_bundle(bundle))
     spec = runtime.bundle.mask_spec()
     photos = validation_photos(data, limit)
     first = lambda rgb: object_mask(rgb, runtime.segment, spec)                     # noqa: E731
     rows = {"first look": measure(photos, first)}
     if with_grabcut:
-        rows["first look + GrabCut"] = measure(photos, lambda rgb: grabcut(rgb, first(rgb), spec))
+        rows["first look + GrabCut"] = measure(photos, lambda rgb: grabcut(rgb, first(rgb), spec, grabcut_side,
+                                                                          grabcut_iterations))
     if refine is not None:
         net = refine_in_torch(refine)
         crop = MaskSpec(**{**spec.to_dict(), "crop_size": net.size})
@@ -133,11 +135,14 @@ def main(argv: list[str] | None = None) -> int:
                     "network gives the first look (default the shipped one)")
     ap.add_argument("--refine", default=None, help="a refinement network's run or checkpoint (python -m model.train refine)")
     ap.add_argument("--grabcut", action="store_true", help="also the GrabCut refinement (needs opencv-python-headless)")
+    ap.add_argument("--grabcut-side", type=int, default=256, help="GrabCut's working side in pixels (default 256)")
+    ap.add_argument("--grabcut-iterations", type=int, default=3, help="GrabCut's iterations (default 3)")
     ap.add_argument("--limit", type=int, default=None, help="the first N validation shapes only")
     ap.add_argument("--out", default=None, help="write the figures (and per-photo rows) here")
     args = ap.parse_args(argv)
     try:
-        res = compare(args.data, args.bundle, args.refine, args.limit, args.grabcut)
+        res = compare(args.data, args.bundle, args.refine, args.limit, args.grabcut, args.grabcut_side,
+                      args.grabcut_iterations)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
