@@ -88,8 +88,9 @@ class Engine:
         one symmetry search (their kernels compile on their first call: seconds, where no cache
         was written; the octree build's compile with the models' warm-up); then the service is
         ready."""
-        estimate_normals(_sphere(200)[0])
-        find_mirror(_sphere(200)[0])
+        points = _sphere(200)[0]
+        estimate_normals(points)
+        find_mirror(points)
         for served in self.models.values():
             rt, b = served.runtime, served.bundle
             guide = None

@@ -28,8 +28,6 @@ CELLS_PER_POINT = 2
 FILL = 0.5
 """The grid aims at ``FILL * k`` points per occupied cell: the k nearest then mostly lie within
 the point's cell and the 26 around it, and few of those 27 cells' points are not among them."""
-THREADS = WORKERS
-"""Queries split in this many contiguous parts, each in its own thread (the kernel releases the GIL)."""
 TIED_SHARE = 0.2
 """Above this share of rows with tied distances (points on a lattice), cKDTree answers them all."""
 
@@ -135,7 +133,7 @@ def _query(points: np.ndarray, order: np.ndarray, start: np.ndarray, lo: np.ndar
         tied[row] = tie
 
 
-def nearest(points: np.ndarray, k: int, threads: int = THREADS) -> np.ndarray:
+def nearest(points: np.ndarray, k: int, threads: int = WORKERS) -> np.ndarray:
     """(n, k) int64: the indices of the ``k`` nearest points of each of ``points`` (n, 3) among
     them, as cKDTree gives them (module invariants); 1 <= ``k`` <= n."""
     pts = np.ascontiguousarray(points, dtype=np.float64)

@@ -78,26 +78,9 @@ def patch_errors(pts: np.ndarray, nrm: np.ndarray, cfg: PatchErrorSettings, cent
             _probes_searched(err, pts, idx, start, count, probes, todo, local, tol0, edge_tol0, centre, normal,
                              size, bound)
         return err
-    grid_open, edge_open = np.arange(len(probes.grid_patch)), np.arange(len(probes.edge_patch))
     with timer("probes in k-d tree"):
-        _probes_in_tree(err, pts, idx, owner, probes, todo, grid_open, edge_open, tol0, edge_tol0, centre,
-                        normal, size, bound)
+        _probes_in_tree(err, pts, idx, owner, probes, todo, tol0, edge_tol0, centre, normal, size, bound)
     return err
-
-
-def _probe_queries(probes: PatchProbes, grid_open, edge_open, todo, tol0, edge_tol0, centre, normal,
-                   size: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The probes ``grid_open`` and ``edge_open`` as the k-d tree is asked them: each one's patch
-    (rank in ``todo``), tolerance, and coordinates (3, P) in the cube (not yet shifted)."""
-    patch = probes.grid_patch[grid_open]
-    gpts = probes.grid_points(grid_open)
-    gtol = _probe_tol(tol0[patch], boundary_distance(gpts, normal[todo][patch], size))
-    patch = np.concatenate([patch, probes.edge_patch[edge_open]])
-    tol = np.concatenate([gtol, edge_tol0[probes.edge_patch[edge_open]]])
-    query = np.concatenate([gpts, probes.edge_points(edge_open)], axis=1)
-    for c in range(3):
-        query[c] += centre[todo, c][patch]
-    return patch, tol, query
 
 
 def _probes_searched(err, pts, idx, start, count, probes: PatchProbes, todo, local, tol0, edge_tol0, centre,
@@ -148,12 +131,18 @@ def _surface_to_patch(pts, nrm, cfg: PatchErrorSettings, centre, normal, offset,
     return np.maximum.reduceat(dist, np.cumsum(count) - count), local, idx
 
 
-def _probes_in_tree(err, pts, idx, owner, probes: PatchProbes, todo, grid_open, edge_open, tol0, edge_tol0, centre,
-                    normal, size: float, bound: float) -> None:
-    """patch->surface of the probes ``grid_open`` and ``edge_open`` by the k-d tree of each
-    octant's points (the reference), folded into ``err`` (probes farther than ``bound`` read
-    infinite)."""
-    patch, tol, query = _probe_queries(probes, grid_open, edge_open, todo, tol0, edge_tol0, centre, normal, size)
+def _probes_in_tree(err, pts, idx, owner, probes: PatchProbes, todo, tol0, edge_tol0, centre, normal, size: float,
+                    bound: float) -> None:
+    """patch->surface of every probe by the k-d tree of each octant's points (the reference),
+    folded into ``err`` (probes farther than ``bound`` read infinite)."""
+    patch = probes.grid_patch
+    gpts = probes.grid_points(np.arange(len(patch)))
+    gtol = _probe_tol(tol0[patch], boundary_distance(gpts, normal[todo][patch], size))
+    tol = np.concatenate([gtol, edge_tol0[probes.edge_patch]])
+    query = np.concatenate([gpts, probes.edge_points(np.arange(len(probes.edge_patch)))], axis=1)
+    patch = np.concatenate([patch, probes.edge_patch])
+    for c in range(3):
+        query[c] += centre[todo, c][patch]
     if len(patch):
         oct_id = todo[patch]
         d = _nearest_in_octant(pts, idx, owner, query, oct_id, bound)
