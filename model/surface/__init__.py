@@ -1,5 +1,7 @@
 """A closed surface from a decoded octree: the leaf planes' Hermite data contoured on the finest
-grid (dual marching cubes), with inside and outside decided by the planes and by reachability.
+grid (dual marching cubes), with inside and outside decided by the planes and by reachability,
+then the vertices merged leaf by leaf where the surface stays closed, manifold and within a
+third of a cell of the contour (:mod:`.clusters`): a large flat leaf becomes a few large faces.
 
 The patch mesh of :mod:`model.octree.patches` is the paper's output: one planar polygon per leaf,
 with cracks between them.  :func:`watertight_mesh` returns instead a mesh that is closed,
@@ -22,7 +24,8 @@ from scipy.sparse.csgraph import connected_components
 from ..octree import Octree
 from ..octree.patches import patch_mesh
 from .checks import is_closed, is_closed_embedded
-from .dmc import contour
+from .clusters import cluster, triangulate
+from .dmc import apart, contour
 from .grid import Grid, Leaves, build_grid, leaves_of, rasterise
 from .orient import orient
 from .sign import inside_corners
@@ -85,16 +88,26 @@ def signed_grid(octree: Octree) -> tuple[Grid, Leaves, np.ndarray]:
     return grid, leaves, inside_corners(grid, leaves)
 
 
-def watertight_mesh(octree: Octree, world: bool = True, min_component_faces: int = MIN_COMPONENT_FACES) -> SurfaceMesh:
+def watertight_mesh(octree: Octree, world: bool = True, min_component_faces: int = MIN_COMPONENT_FACES,
+                    merge: bool = True) -> SurfaceMesh:
     """The closed surface of a single-shape octree, in the input's coordinates unless ``world`` is
-    False (then in the unit cube).  Components of fewer than ``min_component_faces`` faces are
-    dropped.  An octree without leaves gives an empty mesh."""
+    False (then in the unit cube): the finest grid's contour with each leaf's vertices merged
+    (:mod:`.clusters`) unless ``merge`` is False.  Components of fewer than
+    ``min_component_faces`` faces are dropped.  An octree without leaves gives an empty mesh."""
     if octree.batch_size != 1:
         raise ValueError("watertight_mesh needs a single-shape octree (split a batch first)")
     if not len(leaves_of(octree)):
         return SurfaceMesh("watertight", np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64), True)
     grid, leaves, inside = signed_grid(octree)
-    verts, faces, leaf = contour(grid, leaves, inside)
+    verts, quads, cell = contour(grid, leaves, inside)
+    if merge and len(quads):
+        c = cluster(verts, quads, cell, grid, leaves)
+        verts, faces, leaf, centre = c.vertices, c.triangles, c.leaf, c.centre
+    else:
+        faces = triangulate(verts, quads)
+        leaf = grid.owner[cell[:, 0], cell[:, 1], cell[:, 2]].astype(np.int64)
+        centre = grid.corner_positions(cell) + grid.h / 2
+    verts = apart(verts, faces, np.clip(centre, 0.0, 1.0), grid.h)
     depth = octree.depth - np.log2(np.where(leaf >= 0, leaves.cells[np.maximum(leaf, 0)], 1)).astype(np.int64)
     keep, faces = drop_small_components(len(verts), faces, min_component_faces)
     verts, depth = verts[keep], depth[keep]

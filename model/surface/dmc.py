@@ -55,9 +55,9 @@ def repair(inside: np.ndarray, max_rounds: int = 64) -> tuple[np.ndarray, np.nda
 
 
 def contour(grid: Grid, leaves: Leaves, inside: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Vertices (V, 3) in cube coordinates, triangles (F, 3) of the surface between the inside
-    and outside corners, outward-facing, and the leaf owning each vertex's cell (-1: none).  The
-    vertices lie in the unit cube and no two are at one position (:func:`_apart`)."""
+    """Vertices (V, 3) in cube coordinates (in the unit cube), quads (Q, 4) of the surface between
+    the inside and outside corners, wound with the outside in front, and each vertex's array cell
+    (V, 3) in ``grid``."""
     inside, config, _ = repair(inside)
     first = np.zeros(config.size + 1, np.int64)
     np.cumsum(COMPONENTS[config].ravel(), out=first[1:])
@@ -90,46 +90,45 @@ def contour(grid: Grid, leaves: Leaves, inside: np.ndarray) -> tuple[np.ndarray,
         cells.append(np.stack(around, 1))
         edges.append((p, np.full(len(p), axis), out_first))
     if not rings:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64)
+        return np.zeros((0, 3)), np.zeros((0, 4), np.int64), np.zeros((0, 3), np.int64)
     rings = np.concatenate(rings)
     cell = _vertex_cells(config.shape, first)
     verts = _place(grid, leaves, cell, np.concatenate(cells), *(np.concatenate(e) for e in zip(*edges)), rings)
-    verts = np.clip(verts, 0.0, 1.0)                             # the octree's cube is the domain
-    verts = _apart(verts, rings, np.clip(grid.corner_positions(cell) + grid.h / 2, 0.0, 1.0), grid.h)
-    return verts, _triangles(verts, rings), grid.owner[cell[:, 0], cell[:, 1], cell[:, 2]].astype(np.int64)
+    return np.clip(verts, 0.0, 1.0), rings, cell                 # the octree's cube is the domain
 
 
 APART = 1e-3
 """How far (in cells) a vertex moves away from another that has its position."""
 
 
-def _apart(verts: np.ndarray, quads: np.ndarray, cell_centre: np.ndarray, h: float, rounds: int = 4) -> np.ndarray:
+def apart(verts: np.ndarray, faces: np.ndarray, cell_centre: np.ndarray, h: float, rounds: int = 6) -> np.ndarray:
     """The vertices, each one within ``APART h / 10`` of another (vertices of neighbouring cells
     clipped onto their common face, edge or corner, or two components of one cell placed by the
-    same planes) moved by :data:`APART` cells: first towards its own cell's centre (``cell_centre``),
-    then, for those still together, towards the centre of its own quads, in rounds until none is.
-    A reader that merges vertices by position (as trimesh, Blender and slicers do) then finds the
+    same planes) moved by :data:`APART` cells: first towards its own cell's centre (``cell_centre``);
+    then, of each pair still together, the vertex of the lower index alone towards the centre of
+    its own faces (two vertices that move alike stay together), in rounds until none is.  A
+    reader that merges vertices by position (as trimesh, Blender and slicers do) then finds the
     same mesh.  Vertices move towards points inside the unit cube, so they stay in it."""
     out = verts
     for r in range(rounds):
         pairs = cKDTree(out).query_pairs(0.1 * APART * h, output_type="ndarray")
         if not len(pairs):
             break
-        near = np.unique(pairs)
-        step = (cell_centre[near] if r == 0 else _quad_centres(verts, quads, near)) - out[near]
+        near = np.unique(pairs) if r == 0 else np.unique(pairs.min(1))
+        step = (cell_centre[near] if r == 0 else _face_centres(verts, faces, near)) - out[near]
         out = out.copy()
         out[near] += APART * h * step / np.maximum(np.linalg.norm(step, axis=1, keepdims=True), 1e-30)
     return out
 
 
-def _quad_centres(verts: np.ndarray, quads: np.ndarray, which: np.ndarray) -> np.ndarray:
-    """(len(which), 3): for the vertices ``which``, the mean of the centroids of the quads around each."""
-    rows = np.flatnonzero(np.isin(quads, which).any(1))
-    around, middle = quads[rows], verts[quads[rows]].mean(1)
+def _face_centres(verts: np.ndarray, faces: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """(len(which), 3): for the vertices ``which``, the mean of the centroids of the faces around each."""
+    rows = np.flatnonzero(np.isin(faces, which).any(1))
+    around, middle = faces[rows], verts[faces[rows]].mean(1)
     index = np.searchsorted(which, around.ravel())
     mine = (index < len(which)) & (which[np.minimum(index, len(which) - 1)] == around.ravel())
     total = np.zeros((len(which), 3))
-    np.add.at(total, index[mine], np.repeat(middle, 4, axis=0)[mine])
+    np.add.at(total, index[mine], np.repeat(middle, faces.shape[1], axis=0)[mine])
     return total / np.maximum(np.bincount(index[mine], minlength=len(which)), 1)[:, None]
 
 
@@ -213,19 +212,3 @@ def _vertex_cells(shape: tuple, first: np.ndarray) -> np.ndarray:
     """The (padded) cell index of every vertex."""
     owner = np.repeat(np.arange(len(first) - 1), np.diff(first))
     return np.stack(np.unravel_index(owner, shape), 1)
-
-
-def _triangles(verts: np.ndarray, quads: np.ndarray) -> np.ndarray:
-    """Two triangles per quad, split along the diagonal whose triangles' normals agree best."""
-    p = verts[quads]
-    n1 = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 0])
-    n2 = np.cross(p[:, 1] - p[:, 0], p[:, 3] - p[:, 0]), np.cross(p[:, 2] - p[:, 1], p[:, 3] - p[:, 1])
-
-    def agree(a, b):
-        return np.einsum("ij,ij->i", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-30)
-
-    first = agree(*n1) >= agree(*n2)
-    t = np.where(first[:, None, None],
-                 np.stack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], 1),
-                 np.stack([quads[:, [0, 1, 3]], quads[:, [1, 2, 3]]], 1))
-    return t.reshape(-1, 3)

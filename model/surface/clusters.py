@@ -1,0 +1,302 @@
+"""Fewer faces for the closed surface: the finest grid's vertices merged leaf by leaf, so that a
+flat leaf becomes one vertex of the mesh (vertex clustering on the octree, as in Schaefer, Ju and
+Warren, "Manifold Dual Contouring", 2007).
+
+The contour on the finest grid (:mod:`.dmc`) is closed and 2-manifold.  Each of its vertices
+belongs to the leaf owning its cell.  A *cluster* is a set of vertices of one cube of a leaf (at
+first the leaf's whole cube) on one side of the leaf's plane and joined by the mesh's own edges;
+it is merged into one vertex at its members' mean.  A merge stands only where the mesh stays a
+closed 2-manifold (each edge of two faces, wound opposite ways; each vertex's faces one fan; no
+two faces on the same vertices; no quad folded onto itself), no face turns over against the fine
+faces it comes from, and no member's faces turn away from the leaf's plane.  A cluster that breaks
+any of these is split into the octants of its cube and merged again, down to single cells, which
+are the fine mesh itself: so the result is closed and manifold wherever the fine mesh is.
+Vertices of cells no leaf owns (surfaces the sign field closed) are not merged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from ..octree.jit import compiled
+from ..octree.parallel import run_parts
+from .grid import Grid, Leaves
+
+FLAT = 0.2
+"""The least cosine between a fine face and the plane of a leaf (on its member's side) for the
+face's vertices to be merged: a cluster must lie over its plane like a height field."""
+FOLD = 0.0
+"""The least cosine between a merged face's normal and that of the fine quad it comes from."""
+TOLERANCE = 0.3
+"""How far (in finest cells) a merged vertex's faces may pass from the fine vertices it stands for."""
+MAX_ROUNDS = 12
+"""Rounds of halving the failing clusters' cubes; later rounds make them single cells at once."""
+
+
+@dataclass(frozen=True)
+class Clustered:
+    """The merged mesh: ``triangles`` index ``vertices`` (wound as the fine mesh), each vertex's
+    ``leaf`` (-1: none) and the centre of the cube it stands for (its cell, or its cluster's
+    cube), and how many fine vertices each stands for (``members``, all >= 1)."""
+
+    vertices: np.ndarray    # (V, 3)
+    triangles: np.ndarray   # (F, 3) int64
+    leaf: np.ndarray        # (V,) int64
+    centre: np.ndarray      # (V, 3)
+    members: np.ndarray     # (V,) int64
+
+
+def quad_normals(verts: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    """Unit normals of quads wound counter-clockwise (the cross product of their diagonals)."""
+    p = verts[quads]
+    n = np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+
+
+def triangulate(verts: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    """(2Q, 3): two triangles per quad (consecutive rows), split along the diagonal whose two
+    triangles' normals agree best."""
+    p = verts[quads]
+    n1 = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 0])
+    n2 = np.cross(p[:, 1] - p[:, 0], p[:, 3] - p[:, 0]), np.cross(p[:, 2] - p[:, 1], p[:, 3] - p[:, 1])
+
+    def agree(a, b):
+        return np.einsum("ij,ij->i", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-30)
+
+    first = agree(*n1) >= agree(*n2)
+    t = np.where(first[:, None, None],
+                 np.stack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], 1),
+                 np.stack([quads[:, [0, 1, 3]], quads[:, [1, 2, 3]]], 1))
+    return t.reshape(-1, 3)
+
+
+def cluster(verts: np.ndarray, quads: np.ndarray, cell: np.ndarray, grid: Grid, leaves: Leaves) -> Clustered:
+    """Merge the fine contour's vertices (``verts``, ``quads`` wound outward, ``cell``: each
+    vertex's array cell in ``grid``) leaf by leaf as the module docstring says."""
+    fine = cell + grid.origin                                     # finest-cell coordinates
+    leaf = grid.owner[cell[:, 0], cell[:, 1], cell[:, 2]].astype(np.int64)
+    qn = quad_normals(verts, quads)
+    front, facing, size = _sides(verts, quads, qn, leaf, leaves)
+    edges = np.concatenate([quads[:, [0, 1]], quads[:, [1, 2]], quads[:, [2, 3]], quads[:, [3, 0]]])
+    for rounds in range(1, len(verts) + 1):                      # each round splits at least one cluster
+        label = _labels(edges, leaf, size, fine, front)
+        members, pos, tris, first, bad = _attempt(verts, quads, qn, label, facing, TOLERANCE * grid.h)
+        split = bad & (members > 1)
+        if not split.any():                                       # a single vertex's fan broken by its neighbours
+            split[tris[np.isin(tris, np.flatnonzero(bad)).any(1)].ravel()] = True
+            split &= members > 1
+            if not split.any():
+                break
+        grow = split[label]                                       # halve their cubes; after MAX_ROUNDS, single cells
+        size[grow] = np.maximum(size[grow] // 2, 1) if rounds < MAX_ROUNDS else 1
+    side = size[first]
+    centre = ((fine[first] // side[:, None]) * side[:, None] + side[:, None] / 2.0) * grid.h
+    return Clustered(pos, tris, leaf[first], centre, members)
+
+
+def _sides(verts: np.ndarray, quads: np.ndarray, qn: np.ndarray, leaf: np.ndarray,
+           leaves: Leaves) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which side of its leaf's plane each vertex's faces look to (True: the normal's), the
+    plane's normal on that side, and the cube edge (in cells) each vertex may first be merged
+    over: its leaf's, or 1 (not merged) without a leaf or where a face of the vertex turns from
+    the plane (:data:`FLAT`)."""
+    vn = np.stack([np.bincount(quads.ravel(), np.repeat(qn[:, k], 4), minlength=len(verts)) for k in range(3)], 1)
+    plane = leaves.normal[np.maximum(leaf, 0)]
+    front = np.einsum("ij,ij->i", vn, plane) >= 0
+    facing = plane * np.where(front, 1.0, -1.0)[:, None]
+    steep = np.zeros(len(verts), bool)
+    for k in range(4):
+        np.logical_or.at(steep, quads[:, k], np.einsum("ij,ij->i", qn, facing[quads[:, k]]) < FLAT)
+    return front, facing, np.where((leaf >= 0) & ~steep, leaves.cells[np.maximum(leaf, 0)], 1)
+
+
+def _attempt(verts: np.ndarray, quads: np.ndarray, qn: np.ndarray, label: np.ndarray, facing: np.ndarray,
+             tolerance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The clusters ``label`` merged: each one's member count, position, the triangles, a member
+    of each, and which clusters break a condition of the module docstring."""
+    count = int(label.max()) + 1
+    members = np.bincount(label, minlength=count)
+    pos = np.stack([np.bincount(label, verts[:, k], minlength=count) for k in range(3)], 1) / members[:, None]
+    tris, source, folded = _faces(label[quads], pos)
+    first = np.full(count, -1, np.int64)
+    first[label[::-1]] = np.arange(len(verts))[::-1]
+    normal = facing[first]
+    far, height = _deviation(verts, label, members > 1, tris, pos, normal)
+    moved = height != 0
+    pos[moved] += height[moved, None] * normal[moved]             # the fan up to its members, not below them
+    far[moved] = _deviation(verts, label, moved, tris, pos, normal)[0][moved]
+    bad = _failures(tris, source, qn, pos, members) | folded | (far > tolerance)
+    return members, pos, tris, first, bad
+
+
+def _labels(edges: np.ndarray, leaf: np.ndarray, size: np.ndarray, fine: np.ndarray, front: np.ndarray) -> np.ndarray:
+    """Each vertex's cluster (0, 1, ...): the connected parts, by the mesh's edges, of the
+    vertices sharing a leaf, a side of its plane and a cube of their ``size`` in it."""
+    nv = len(leaf)
+    block = fine // size[:, None]
+    key = np.stack([leaf, size, front.astype(np.int64), block[:, 0], block[:, 1], block[:, 2]], 1)
+    a, b = edges[:, 0], edges[:, 1]
+    join = (leaf[a] >= 0) & (size[a] > 1) & np.all(key[a] == key[b], axis=1)
+    graph = coo_matrix((np.ones(int(join.sum()), np.int8), (a[join], b[join])), shape=(nv, nv))
+    return connected_components(graph, directed=False)[1]
+
+
+def _deviation(verts: np.ndarray, label: np.ndarray, which: np.ndarray, tris: np.ndarray,
+               pos: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each cluster of ``which`` (a mask), the largest distance from one of its fine vertices
+    to the nearest of the merged triangles around the cluster's vertex, and how far along ``normal`` the vertex can move
+    towards its fine vertices where all of them are on one side of those triangles (a curved
+    patch's chords pass below or above all of them) without passing any (0 where they are on both
+    sides, as on a flat patch, and outside ``which``)."""
+    far = np.zeros(len(pos))
+    corner = tris.ravel()
+    keep = which[corner]
+    owner, tri = corner[keep], np.repeat(np.arange(len(tris)), 3)[keep]
+    order = np.argsort(owner, kind="stable")
+    fan = np.bincount(owner, minlength=len(pos))
+    start = np.cumsum(fan) - fan
+    fine = np.flatnonzero(which[label])
+    who = label[fine]
+    points, begin, size, fan_tris = verts[fine], start[who], fan[who], tri[order]
+    dist, offset = np.full(len(fine), np.inf), np.zeros((len(fine), 3))
+    run_parts(lambda a, b: _nearest_on_fans(points, begin, size, fan_tris, tris, pos, a, b, dist, offset), len(fine))
+    np.maximum.at(far, who, dist)
+    up = np.einsum("ij,ij->i", offset, normal[who])
+    low, high = np.full(len(pos), np.inf), np.full(len(pos), -np.inf)
+    np.minimum.at(low, who, up)
+    np.maximum.at(high, who, up)
+    height = np.where(np.isfinite(low) & (low > 0), low, np.where(np.isfinite(high) & (high < 0), high, 0.0))
+    return far, height
+
+
+@compiled
+def _nearest_on_fans(points, start, count, fan, tris, pos, first, last, dist, offset) -> None:
+    """For points ``first:last``, the distance to the nearest of each one's triangles
+    ``fan[start:start + count]`` and the vector from that nearest point to it, written into
+    ``dist`` (which holds inf) and ``offset``."""
+    for i in range(first, last):
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        for j in range(start[i], start[i] + count[i]):
+            t = tris[fan[j]]
+            qx, qy, qz = _closest_on_triangle(px, py, pz, pos[t[0]], pos[t[1]], pos[t[2]])
+            d = np.sqrt((px - qx) ** 2 + (py - qy) ** 2 + (pz - qz) ** 2)
+            if d < dist[i]:
+                dist[i] = d
+                offset[i, 0], offset[i, 1], offset[i, 2] = px - qx, py - qy, pz - qz
+
+
+@compiled
+def _closest_on_triangle(px, py, pz, a, b, c):
+    """The point of triangle ``abc`` nearest ``p`` (Ericson, "Real-Time Collision Detection",
+    5.1.5), as three scalars."""
+    abx, aby, abz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    acx, acy, acz = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    d1, d2 = _along(abx, aby, abz, acx, acy, acz, px - a[0], py - a[1], pz - a[2])
+    if d1 <= 0.0 and d2 <= 0.0:
+        return a[0], a[1], a[2]
+    d3, d4 = _along(abx, aby, abz, acx, acy, acz, px - b[0], py - b[1], pz - b[2])
+    if d3 >= 0.0 and d4 <= d3:
+        return b[0], b[1], b[2]
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        v = d1 / (d1 - d3) if d1 > d3 else 0.0
+        return a[0] + abx * v, a[1] + aby * v, a[2] + abz * v
+    d5, d6 = _along(abx, aby, abz, acx, acy, acz, px - c[0], py - c[1], pz - c[2])
+    if d6 >= 0.0 and d5 <= d6:
+        return c[0], c[1], c[2]
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        w = d2 / (d2 - d6) if d2 > d6 else 0.0
+        return a[0] + acx * w, a[1] + acy * w, a[2] + acz * w
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6)) if (d4 - d3) + (d5 - d6) > 0.0 else 0.0
+        return b[0] + (c[0] - b[0]) * w, b[1] + (c[1] - b[1]) * w, b[2] + (c[2] - b[2]) * w
+    total = va + vb + vc
+    if total <= 0.0:                                              # no area: its first corner
+        return a[0], a[1], a[2]
+    v, w = vb / total, vc / total
+    return a[0] + abx * v + acx * w, a[1] + aby * v + acy * w, a[2] + abz * v + acz * w
+
+
+@compiled
+def _along(abx, aby, abz, acx, acy, acz, dx, dy, dz):
+    """The dot products of ``d`` with the triangle's edges ``ab`` and ``ac``."""
+    return abx * dx + aby * dy + abz * dz, acx * dx + acy * dy + acz * dz
+
+
+def _faces(cq: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The merged quads' triangles, the fine quad each comes from, and which clusters fold a quad
+    onto itself (two opposite corners merged, the other two not)."""
+    differs = cq != np.roll(cq, -1, axis=1)                       # corner k differs from corner k + 1
+    runs = differs.sum(1)
+    crossed = (cq[:, 0] == cq[:, 2]) | (cq[:, 1] == cq[:, 3])
+    folded = np.zeros(len(pos), bool)
+    folded[cq[(runs == 4) & crossed].ravel()] = True
+    whole = np.flatnonzero((runs == 4) & ~crossed)
+    three = np.flatnonzero(runs == 3)
+    starts = np.roll(differs, 1, axis=1)[three]                   # corner k begins a run
+    tri = cq[three][starts].reshape(-1, 3)
+    tris = np.concatenate([triangulate(pos, cq[whole]), tri])
+    source = np.concatenate([np.repeat(whole, 2), three])
+    return tris, source, folded
+
+
+def _failures(tris: np.ndarray, source: np.ndarray, qn: np.ndarray, pos: np.ndarray, members: np.ndarray) -> np.ndarray:
+    """(count,) bool: the vertices at which the triangles are not a closed 2-manifold, or whose
+    merged triangles (of a vertex standing for several) turn over against their fine quads
+    (:data:`FOLD`) or have no area."""
+    count = len(members)
+    bad = np.zeros(count, bool)
+    if not len(tris):
+        return bad
+    # two faces on the same three vertices
+    key = np.sort(tris, axis=1)
+    key = (key[:, 0] * count + key[:, 1]) * count + key[:, 2]
+    order = np.argsort(key)
+    same = key[order][1:] == key[order][:-1]
+    bad[tris[order[1:][same]].ravel()] = True
+    bad[tris[order[:-1][same]].ravel()] = True
+    # each edge: exactly two faces, one each way
+    a = tris.ravel()
+    b = np.roll(tris, -1, axis=1).ravel()
+    undirected = np.minimum(a, b) * count + np.maximum(a, b)
+    order = np.argsort(undirected, kind="stable")
+    sk = undirected[order]
+    starts = np.r_[True, sk[1:] != sk[:-1]]
+    group = np.cumsum(starts) - 1
+    size = np.bincount(group)
+    forward = np.bincount(group, (a < b)[order])
+    wrong = (size != 2) | (forward != 1)
+    bad[a[order][wrong[group]]] = True
+    bad[b[order][wrong[group]]] = True
+    # faces turned over, or without area
+    p = pos[tris]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.linalg.norm(n, axis=1)
+    over = np.einsum("ij,ij->i", n, qn[source]) <= FOLD * length
+    merged = (members[tris] > 1).any(1)
+    bad[tris[merged & (over | (length <= 0))].ravel()] = True
+    if not wrong.any():
+        bad |= _pinched(tris, count)
+    return bad
+
+
+def _pinched(tris: np.ndarray, count: int) -> np.ndarray:
+    """(count,) bool: vertices whose faces form more than one fan (the mesh closed and wound
+    consistently, so each directed edge has its reverse)."""
+    f = len(tris)
+    corner = np.arange(3 * f).reshape(f, 3)
+    key = tris.ravel() * count + np.roll(tris, -1, axis=1).ravel()
+    back = np.roll(corner, -1, axis=1).ravel()
+    order = np.argsort(key)
+    rev = np.roll(tris, -1, axis=1).ravel() * count + tris.ravel()
+    partner = order[np.searchsorted(key[order], rev)]
+    graph = coo_matrix((np.ones(3 * f, np.int8), (corner.ravel(), back[partner])), shape=(3 * f, 3 * f))
+    _, fan = connected_components(graph, directed=False)
+    pairs = np.unique(tris.ravel().astype(np.int64) * (3 * f) + fan)
+    return np.bincount(pairs // (3 * f), minlength=count) > 1

@@ -1,0 +1,96 @@
+"""Merging the finest grid's vertices leaf by leaf: the same closed surface, with the same
+topology, within the tolerance of the fine contour, with far fewer faces where leaves are large."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import cKDTree
+from trimesh.triangles import closest_point
+
+from model.octree import build_octree
+from model.surface import signed_grid, watertight_mesh
+from model.surface.checks import is_closed_embedded
+from model.surface.clusters import TOLERANCE, cluster
+from model.surface.dmc import contour
+
+from ..meshes import mesh_path
+from ..octree.conftest import mesh_points, sphere_points
+
+
+def octree(shape: str, depth: int):
+    if shape == "sphere":
+        return build_octree(sphere_points(60_000), depth, neighbors=False)
+    if shape == "torus":
+        mesh = trimesh.creation.torus(1.0, 0.35, major_sections=96, minor_sections=48)
+    elif shape == "box":
+        mesh = trimesh.creation.box(extents=(1.0, 0.6, 0.8))
+    else:
+        mesh = trimesh.load(mesh_path(shape), force="mesh")
+    return build_octree(mesh_points(mesh, 150_000), depth, neighbors=False)
+
+
+SHAPES = ["sphere", "torus", "box", "knot.ply", "cad_block.stl", "chair_soup.off", "airplane_soup.stl", "blob.obj"]
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_merging_keeps_the_surface_closed_with_its_topology(shape):
+    o = octree(shape, 6)
+    fine, merged = watertight_mesh(o, merge=False), watertight_mesh(o)
+    assert merged.closed and is_closed_embedded(merged.vertices, merged.faces)
+    a = trimesh.Trimesh(fine.vertices, fine.faces, process=False)
+    b = trimesh.Trimesh(merged.vertices, merged.faces, process=False)
+    assert b.is_watertight and b.is_winding_consistent
+    assert (b.body_count, b.euler_number) == (a.body_count, a.euler_number)
+    assert b.volume == pytest.approx(a.volume, rel=0.03)
+    assert len(merged.faces) < 0.8 * len(fine.faces)
+
+
+@pytest.mark.parametrize("shape, most", [("box", 0.25), ("blob.obj", 0.5), ("cad_block.stl", 0.5)])
+def test_large_flat_leaves_become_few_faces(shape, most):
+    o = octree(shape, 7)
+    assert len(watertight_mesh(o).faces) < most * len(watertight_mesh(o, merge=False).faces)
+
+
+@pytest.mark.parametrize("shape", ["sphere", "knot.ply", "cad_block.stl", "airplane_soup.stl"])
+def test_every_fine_vertex_stays_within_the_tolerance_of_the_merged_surface(shape):
+    """Checked with trimesh's closest point on every merged triangle near each fine vertex (not
+    the module's own search)."""
+    o = octree(shape, 6)
+    grid, leaves, inside = signed_grid(o)
+    verts, quads, cell = contour(grid, leaves, inside)
+    c = cluster(verts, quads, cell, grid, leaves)
+    assert c.members.sum() == len(verts) and len(c.vertices) < len(verts)
+    h = grid.h
+    # candidate triangles: those with a corner within 4 cells of the fine vertex
+    near = cKDTree(c.vertices).query_ball_point(verts, 4 * h)
+    owner = np.repeat(np.arange(len(verts)), [len(n) for n in near])
+    corner = np.concatenate([np.asarray(n, np.int64) for n in near])
+    touching = [[] for _ in range(len(c.vertices))]
+    for t, tri in enumerate(c.triangles):
+        for v in tri:
+            touching[v].append(t)
+    pairs = {(p, t) for p, v in zip(owner, corner) for t in touching[v]}
+    p, t = np.array(sorted(pairs)).T
+    dist = np.linalg.norm(closest_point(c.vertices[c.triangles[t]], verts[p]) - verts[p], axis=1)
+    nearest = np.full(len(verts), np.inf)
+    np.minimum.at(nearest, p, dist)
+    assert nearest.max() <= (TOLERANCE + 1e-6) * h, nearest.max() / h
+    assert np.median(nearest) <= 0.1 * h
+
+
+def test_a_merged_vertex_stands_for_its_leaf_on_one_side():
+    """A flat box at depth 7 has leaves of several sizes; each merged vertex lies in the cube of
+    the leaf it stands for (or its part), and on that leaf's plane."""
+    o = octree("box", 7)
+    grid, leaves, inside = signed_grid(o)
+    verts, quads, cell = contour(grid, leaves, inside)
+    c = cluster(verts, quads, cell, grid, leaves)
+    big = (c.members > 1) & (c.leaf >= 0)
+    assert big.sum() > 50 and c.members.max() >= 16
+    k = c.leaf[big]
+    lo, hi = leaves.origin[k] * grid.h, (leaves.origin[k] + leaves.cells[k, None]) * grid.h
+    assert np.all((c.vertices[big] >= lo - 1e-9) & (c.vertices[big] <= hi + 1e-9))
+    off = np.abs(np.einsum("ij,ij->i", c.vertices[big], leaves.normal[k]) + leaves.const[k])
+    assert np.median(off) <= 0.05 * grid.h
