@@ -82,20 +82,33 @@ def cluster(verts: np.ndarray, quads: np.ndarray, cell: np.ndarray, grid: Grid, 
     qn = quad_normals(verts, quads)
     front, facing, size = _sides(verts, quads, qn, leaf, leaves)
     edges = np.concatenate([quads[:, [0, 1]], quads[:, [1, 2]], quads[:, [2, 3]], quads[:, [3, 0]]])
+    merged, grow = None, np.zeros(len(verts), bool)
     for rounds in range(1, len(verts) + 1):                      # each round splits at least one cluster
         label = _labels(edges, leaf, size, fine, front)
-        members, pos, tris, first, bad = _attempt(verts, quads, qn, label, facing, TOLERANCE * grid.h)
-        split = bad & (members > 1)
+        merged, bad = _attempt(verts, quads, qn, label, facing, TOLERANCE * grid.h, merged, grow)
+        split = bad & (merged.members > 1)
         if not split.any():                                       # a single vertex's fan broken by its neighbours
-            split[tris[np.isin(tris, np.flatnonzero(bad)).any(1)].ravel()] = True
-            split &= members > 1
+            split[merged.tris[np.isin(merged.tris, np.flatnonzero(bad)).any(1)].ravel()] = True
+            split &= merged.members > 1
             if not split.any():
                 break
         grow = split[label]                                       # halve their cubes; after MAX_ROUNDS, single cells
         size[grow] = np.maximum(size[grow] // 2, 1) if rounds < MAX_ROUNDS else 1
-    side = size[first]
-    centre = ((fine[first] // side[:, None]) * side[:, None] + side[:, None] / 2.0) * grid.h
-    return Clustered(pos, tris, leaf[first], centre, members)
+    side = size[merged.first]
+    centre = ((fine[merged.first] // side[:, None]) * side[:, None] + side[:, None] / 2.0) * grid.h
+    return Clustered(merged.pos, merged.tris, leaf[merged.first], centre, merged.members)
+
+
+@dataclass(frozen=True)
+class _Merge:
+    """One round's clusters merged: each vertex's cluster, each cluster's member count, position
+    and a member of it, and the triangles."""
+
+    label: np.ndarray
+    members: np.ndarray
+    pos: np.ndarray
+    first: np.ndarray
+    tris: np.ndarray
 
 
 def _sides(verts: np.ndarray, quads: np.ndarray, qn: np.ndarray, leaf: np.ndarray,
@@ -115,22 +128,39 @@ def _sides(verts: np.ndarray, quads: np.ndarray, qn: np.ndarray, leaf: np.ndarra
 
 
 def _attempt(verts: np.ndarray, quads: np.ndarray, qn: np.ndarray, label: np.ndarray, facing: np.ndarray,
-             tolerance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The clusters ``label`` merged: each one's member count, position, the triangles, a member
-    of each, and which clusters break a condition of the module docstring."""
+             tolerance: float, before: _Merge | None, grow: np.ndarray) -> tuple[_Merge, np.ndarray]:
+    """The clusters ``label`` merged, and which clusters break a condition of the module
+    docstring.  Given the round ``before`` and the vertices whose cubes it halved (``grow``), only
+    the clusters that changed and their neighbours are measured again: the others, and everything
+    they are measured on, are as they were, and they passed."""
     count = int(label.max()) + 1
     members = np.bincount(label, minlength=count)
     pos = np.stack([np.bincount(label, verts[:, k], minlength=count) for k in range(3)], 1) / members[:, None]
-    tris, source, folded = _faces(label[quads], pos)
     first = np.full(count, -1, np.int64)
     first[label[::-1]] = np.arange(len(verts))[::-1]
+    changed = np.ones(count, bool) if before is None else _changed(label, members, grow, before)
+    if before is not None:
+        pos[~changed] = before.pos[before.label[first[~changed]]]
+    tris, source, folded = _faces(label[quads], pos)
     normal = facing[first]
-    far, height = _deviation(verts, label, members > 1, tris, pos, normal)
-    moved = height != 0
-    pos[moved] += height[moved, None] * normal[moved]             # the fan up to its members, not below them
-    far[moved] = _deviation(verts, label, moved, tris, pos, normal)[0][moved]
-    bad = _failures(tris, source, qn, pos, members) | folded | (far > tolerance)
-    return members, pos, tris, first, bad
+    _, height = _deviation(verts, label, changed & (members > 1), tris, pos, normal)
+    pos += height[:, None] * normal                               # the fan up to its members, not below them
+    ring = changed.copy()
+    ring[tris[changed[tris].any(1)].ravel()] = True
+    far, _ = _deviation(verts, label, ring & (members > 1), tris, pos, normal)
+    near = ring[tris].any(1)
+    bad = _failures(tris[near], source[near], qn, pos, members, ring) | folded | (far > tolerance)
+    return _Merge(label, members, pos, first, tris), bad & ring
+
+
+def _changed(label: np.ndarray, members: np.ndarray, grow: np.ndarray, before: _Merge) -> np.ndarray:
+    """The clusters that are not one of ``before``'s with the same members."""
+    count = len(members)
+    low, high = np.full(count, len(before.members)), np.full(count, -1)
+    np.minimum.at(low, label, before.label)
+    np.maximum.at(high, label, before.label)
+    same = (low == high) & (members == before.members[np.minimum(low, len(before.members) - 1)])
+    return ~same | (np.bincount(label, grow, minlength=count) > 0)
 
 
 def _labels(edges: np.ndarray, leaf: np.ndarray, size: np.ndarray, fine: np.ndarray, front: np.ndarray) -> np.ndarray:
@@ -246,10 +276,12 @@ def _faces(cq: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     return tris, source, folded
 
 
-def _failures(tris: np.ndarray, source: np.ndarray, qn: np.ndarray, pos: np.ndarray, members: np.ndarray) -> np.ndarray:
+def _failures(tris: np.ndarray, source: np.ndarray, qn: np.ndarray, pos: np.ndarray, members: np.ndarray,
+              whole: np.ndarray) -> np.ndarray:
     """(count,) bool: the vertices at which the triangles are not a closed 2-manifold, or whose
     merged triangles (of a vertex standing for several) turn over against their fine quads
-    (:data:`FOLD`) or have no area."""
+    (:data:`FOLD`) or have no area.  ``tris`` holds every triangle of the vertices ``whole``
+    (a mask); only edges with an end among them, and their fans, are judged."""
     count = len(members)
     bad = np.zeros(count, bool)
     if not len(tris):
@@ -271,9 +303,9 @@ def _failures(tris: np.ndarray, source: np.ndarray, qn: np.ndarray, pos: np.ndar
     group = np.cumsum(starts) - 1
     size = np.bincount(group)
     forward = np.bincount(group, (a < b)[order])
-    wrong = (size != 2) | (forward != 1)
-    bad[a[order][wrong[group]]] = True
-    bad[b[order][wrong[group]]] = True
+    wrong = ((size != 2) | (forward != 1))[group] & (whole[a[order]] | whole[b[order]])
+    bad[a[order][wrong]] = True
+    bad[b[order][wrong]] = True
     # faces turned over, or without area
     p = pos[tris]
     n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
@@ -287,16 +319,18 @@ def _failures(tris: np.ndarray, source: np.ndarray, qn: np.ndarray, pos: np.ndar
 
 
 def _pinched(tris: np.ndarray, count: int) -> np.ndarray:
-    """(count,) bool: vertices whose faces form more than one fan (the mesh closed and wound
-    consistently, so each directed edge has its reverse)."""
+    """(count,) bool: vertices whose faces form more than one fan, for those whose edges all have
+    their reverse in ``tris`` (the others' fans are not all there)."""
     f = len(tris)
     corner = np.arange(3 * f).reshape(f, 3)
     key = tris.ravel() * count + np.roll(tris, -1, axis=1).ravel()
     back = np.roll(corner, -1, axis=1).ravel()
     order = np.argsort(key)
     rev = np.roll(tris, -1, axis=1).ravel() * count + tris.ravel()
-    partner = order[np.searchsorted(key[order], rev)]
-    graph = coo_matrix((np.ones(3 * f, np.int8), (corner.ravel(), back[partner])), shape=(3 * f, 3 * f))
+    partner = order[np.minimum(np.searchsorted(key[order], rev), 3 * f - 1)]
+    paired = key[partner] == rev
+    graph = coo_matrix((np.ones(int(paired.sum()), np.int8), (corner.ravel()[paired], back[partner][paired])),
+                       shape=(3 * f, 3 * f))
     _, fan = connected_components(graph, directed=False)
     pairs = np.unique(tris.ravel().astype(np.int64) * (3 * f) + fan)
     return np.bincount(pairs // (3 * f), minlength=count) > 1
