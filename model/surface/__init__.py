@@ -92,7 +92,8 @@ def watertight_mesh(octree: Octree, world: bool = True, min_component_faces: int
                     merge: bool = True) -> SurfaceMesh:
     """The closed surface of a single-shape octree, in the input's coordinates unless ``world`` is
     False (then in the unit cube): the finest grid's contour with each leaf's vertices merged
-    (:mod:`.clusters`) unless ``merge`` is False.  Components of fewer than
+    (:mod:`.clusters`) unless ``merge`` is False, or where the merged mesh is not closed as
+    embedded (not seen, but checked) the contour unmerged.  Components of fewer than
     ``min_component_faces`` faces are dropped.  An octree without leaves gives an empty mesh."""
     if octree.batch_size != 1:
         raise ValueError("watertight_mesh needs a single-shape octree (split a batch first)")
@@ -102,11 +103,19 @@ def watertight_mesh(octree: Octree, world: bool = True, min_component_faces: int
     verts, quads, cell = contour(grid, leaves, inside)
     if merge and len(quads):
         c = cluster(verts, quads, cell, grid, leaves)
-        verts, faces, leaf, centre = c.vertices, c.triangles, c.leaf, c.centre
-    else:
-        faces = triangulate(verts, quads)
-        leaf = grid.owner[cell[:, 0], cell[:, 1], cell[:, 2]].astype(np.int64)
-        centre = grid.corner_positions(cell) + grid.h / 2
+        m = _finished(octree, grid, leaves, c.vertices, c.triangles, c.leaf, c.centre, world, min_component_faces)
+        if m.closed:
+            return m
+    leaf = grid.owner[cell[:, 0], cell[:, 1], cell[:, 2]].astype(np.int64)
+    centre = grid.corner_positions(cell) + grid.h / 2
+    return _finished(octree, grid, leaves, verts, triangulate(verts, quads), leaf, centre, world, min_component_faces)
+
+
+def _finished(octree: Octree, grid: Grid, leaves: Leaves, verts: np.ndarray, faces: np.ndarray, leaf: np.ndarray,
+              centre: np.ndarray, world: bool, min_component_faces: int) -> SurfaceMesh:
+    """The closed surface from its vertices (cube coordinates), triangles, each vertex's leaf and
+    the centre of the cube it stands for: vertices at one position parted, small components
+    dropped, checked as a welding reader loads it."""
     verts = apart(verts, faces, np.clip(centre, 0.0, 1.0), grid.h)
     depth = octree.depth - np.log2(np.where(leaf >= 0, leaves.cells[np.maximum(leaf, 0)], 1)).astype(np.int64)
     keep, faces = drop_small_components(len(verts), faces, min_component_faces)

@@ -313,14 +313,13 @@ def _failures(tris: np.ndarray, source: np.ndarray, qn: np.ndarray, pos: np.ndar
     over = np.einsum("ij,ij->i", n, qn[source]) <= FOLD * length
     merged = (members[tris] > 1).any(1)
     bad[tris[merged & (over | (length <= 0))].ravel()] = True
-    if not wrong.any():
-        bad |= _pinched(tris, count)
-    return bad
+    return bad | _pinched(tris, count)           # a vertex with a wrong edge is bad already; the others' fans are whole
 
 
 def _pinched(tris: np.ndarray, count: int) -> np.ndarray:
-    """(count,) bool: vertices whose faces form more than one fan, for those whose edges all have
-    their reverse in ``tris`` (the others' fans are not all there)."""
+    """(count,) bool: vertices whose faces form more than one fan, exact for those whose every
+    edge has two faces, one each way (a corner is joined only to corners of its own vertex, so
+    another vertex's wrong edge changes nothing here)."""
     f = len(tris)
     corner = np.arange(3 * f).reshape(f, 3)
     key = tris.ravel() * count + np.roll(tris, -1, axis=1).ravel()
