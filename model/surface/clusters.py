@@ -82,8 +82,10 @@ def cluster(verts: np.ndarray, quads: np.ndarray, cell: np.ndarray, grid: Grid, 
     qn = quad_normals(verts, quads)
     front, facing, size = _sides(verts, quads, qn, leaf, leaves)
     edges = np.concatenate([quads[:, [0, 1]], quads[:, [1, 2]], quads[:, [2, 3]], quads[:, [3, 0]]])
+    edges = edges[edges[:, 0] < edges[:, 1]]                      # each edge once (it has two quads)
     merged, grow = None, np.zeros(len(verts), bool)
     for rounds in range(1, len(verts) + 1):                      # each round splits at least one cluster
+        edges = edges[(size[edges[:, 0]] > 1) & (size[edges[:, 1]] > 1)]   # single cells join nothing
         label = _labels(edges, leaf, size, fine, front)
         merged, bad = _attempt(verts, quads, qn, label, facing, TOLERANCE * grid.h, merged, grow)
         split = bad & (merged.members > 1)
@@ -164,14 +166,18 @@ def _changed(label: np.ndarray, members: np.ndarray, grow: np.ndarray, before: _
 
 
 def _labels(edges: np.ndarray, leaf: np.ndarray, size: np.ndarray, fine: np.ndarray, front: np.ndarray) -> np.ndarray:
-    """Each vertex's cluster (0, 1, ...): the connected parts, by the mesh's edges, of the
+    """Each vertex's cluster (0, 1, ...): the connected parts, by the mesh's ``edges``, of the
     vertices sharing a leaf, a side of its plane and a cube of their ``size`` in it."""
-    nv = len(leaf)
     block = fine // size[:, None]
-    key = np.stack([leaf, size, front.astype(np.int64), block[:, 0], block[:, 1], block[:, 2]], 1)
+    head = (leaf * 2 + front) * 32 + np.log2(size).astype(np.int64)
+    bits = int(block.max()).bit_length()
+    if int(head.max()).bit_length() + 3 * bits < 63:              # one integer per vertex
+        key = ((head << bits | block[:, 0]) << bits | block[:, 1]) << bits | block[:, 2]
+    else:
+        key = np.unique(np.column_stack([head, block]), axis=0, return_inverse=True)[1].ravel()
     a, b = edges[:, 0], edges[:, 1]
-    join = (leaf[a] >= 0) & (size[a] > 1) & np.all(key[a] == key[b], axis=1)
-    graph = coo_matrix((np.ones(int(join.sum()), np.int8), (a[join], b[join])), shape=(nv, nv))
+    join = (size[a] > 1) & (key[a] == key[b]) & (leaf[a] >= 0)
+    graph = coo_matrix((np.ones(int(join.sum()), np.int8), (a[join], b[join])), shape=(len(leaf),) * 2)
     return connected_components(graph, directed=False)[1]
 
 
