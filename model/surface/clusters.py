@@ -184,28 +184,30 @@ def _labels(edges: np.ndarray, leaf: np.ndarray, size: np.ndarray, fine: np.ndar
 def _deviation(verts: np.ndarray, label: np.ndarray, which: np.ndarray, tris: np.ndarray,
                pos: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For each cluster of ``which`` (a mask), the largest distance from one of its fine vertices
-    to the nearest of the merged triangles around the cluster's vertex, and how far along ``normal`` the vertex can move
-    towards its fine vertices where all of them are on one side of those triangles (a curved
-    patch's chords pass below or above all of them) without passing any (0 where they are on both
-    sides, as on a flat patch, and outside ``which``)."""
-    far = np.zeros(len(pos))
+    to the nearest of the merged triangles around the cluster's vertex, and how far along
+    ``normal`` the vertex can move towards its fine vertices where all of them are on one side of
+    those triangles (a curved patch's chords pass below or above all of them) without passing
+    any (0 where they are on both sides, as on a flat patch, and outside ``which``)."""
+    far, height = np.zeros(len(pos)), np.zeros(len(pos))
     corner = tris.ravel()
     keep = which[corner]
     owner, tri = corner[keep], np.repeat(np.arange(len(tris)), 3)[keep]
-    order = np.argsort(owner, kind="stable")
     fan = np.bincount(owner, minlength=len(pos))
     start = np.cumsum(fan) - fan
     fine = np.flatnonzero(which[label])
+    fine = fine[np.argsort(label[fine], kind="stable")]           # each cluster's vertices together
+    if not len(fine):
+        return far, height
     who = label[fine]
-    points, begin, size, fan_tris = verts[fine], start[who], fan[who], tri[order]
+    points, begin, size, fan_tris = verts[fine], start[who], fan[who], tri[np.argsort(owner, kind="stable")]
     dist, offset = np.full(len(fine), np.inf), np.zeros((len(fine), 3))
     run_parts(lambda a, b: _nearest_on_fans(points, begin, size, fan_tris, tris, pos, a, b, dist, offset), len(fine))
-    np.maximum.at(far, who, dist)
+    runs = np.flatnonzero(np.r_[True, who[1:] != who[:-1]])
+    cluster = who[runs]
+    far[cluster] = np.maximum.reduceat(dist, runs)
     up = np.einsum("ij,ij->i", offset, normal[who])
-    low, high = np.full(len(pos), np.inf), np.full(len(pos), -np.inf)
-    np.minimum.at(low, who, up)
-    np.maximum.at(high, who, up)
-    height = np.where(np.isfinite(low) & (low > 0), low, np.where(np.isfinite(high) & (high < 0), high, 0.0))
+    low, high = np.minimum.reduceat(up, runs), np.maximum.reduceat(up, runs)
+    height[cluster] = np.where(np.isfinite(low) & (low > 0), low, np.where(np.isfinite(high) & (high < 0), high, 0.0))
     return far, height
 
 
