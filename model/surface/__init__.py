@@ -36,8 +36,8 @@ SURFACES = ("watertight", "patches")
 DEFAULT_SURFACE = "patches"
 """What the service and the command lines return unless asked otherwise.  The closed surface is
 one parameter away; it is not the default because on the shipped models' outputs it is less
-accurate than the patches (Chamfer 2% higher for image -> shape, 14% for completion, F-score 0.02
-lower; docs/journal/2026-11-experiments.md) and takes longer to make."""
+accurate than the patches (Chamfer 3% higher for image -> shape, 10-11% for completion, F-score
+about 0.01 lower; docs/results.md, "Closed surfaces"), has more faces and takes longer to make."""
 MIN_COMPONENT_FACES = 20
 """Components with fewer faces are dropped (a bubble around a single grid corner has 12)."""
 
