@@ -41,13 +41,15 @@ MAX_ROUNDS = 12
 class Clustered:
     """The merged mesh: ``triangles`` index ``vertices`` (wound as the fine mesh), each vertex's
     ``leaf`` (-1: none) and the centre of the cube it stands for (its cell, or its cluster's
-    cube), and how many fine vertices each stands for (``members``, all >= 1)."""
+    cube), how many fine vertices each stands for (``members``, all >= 1), and the vertex each
+    fine vertex became (``label``)."""
 
     vertices: np.ndarray    # (V, 3)
     triangles: np.ndarray   # (F, 3) int64
     leaf: np.ndarray        # (V,) int64
     centre: np.ndarray      # (V, 3)
     members: np.ndarray     # (V,) int64
+    label: np.ndarray       # (fine V,) int64
 
 
 def quad_normals(verts: np.ndarray, quads: np.ndarray) -> np.ndarray:
@@ -98,7 +100,7 @@ def cluster(verts: np.ndarray, quads: np.ndarray, cell: np.ndarray, grid: Grid, 
         size[grow] = np.maximum(size[grow] // 2, 1) if rounds < MAX_ROUNDS else 1
     side = size[merged.first]
     centre = ((fine[merged.first] // side[:, None]) * side[:, None] + side[:, None] / 2.0) * grid.h
-    return Clustered(merged.pos, merged.tris, leaf[merged.first], centre, merged.members)
+    return Clustered(merged.pos, merged.tris, leaf[merged.first], centre, merged.members, merged.label)
 
 
 @dataclass(frozen=True)
