@@ -35,12 +35,47 @@ def is_closed(faces: np.ndarray) -> bool:
         return True
     if (np.bincount(faces.ravel()) == 1).any():     # a vertex of one face: its two edges there are open
         return False                                # (a patch mesh, at once, without the sort)
-    n = int(faces.max()) + 1
-    a = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2]]).astype(np.int64)
-    b = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]]).astype(np.int64)
-    # each undirected edge exactly twice, once each way: sorted keys pair up as (2u, 2u + 1)
-    key = np.sort((np.minimum(a, b) * n + np.maximum(a, b)) * 2 + (a < b))
-    return bool(key.size % 2 == 0 and np.all(key[0::2] % 2 == 0) and np.array_equal(key[1::2], key[0::2] + 1))
+    return not edge_faults(faces).any()
+
+
+def edge_faults(faces: np.ndarray, n: int | None = None) -> np.ndarray:
+    """(3F,) bool, one per directed edge ``faces[i, j] -> faces[i, (j + 1) % 3]`` (in the order of
+    ``faces.ravel()``): its edge does not have exactly two faces that traverse it in opposite
+    directions.  ``n``: more than the largest vertex index."""
+    n = int(faces.max()) + 1 if n is None else n
+    a = faces.ravel().astype(np.int64)
+    b = np.roll(faces, -1, axis=1).ravel().astype(np.int64)
+    undirected = np.minimum(a, b) * n + np.maximum(a, b)
+    order = np.argsort(undirected, kind="stable")
+    sorted_key = undirected[order]
+    group = np.cumsum(np.r_[True, sorted_key[1:] != sorted_key[:-1]]) - 1
+    forward = np.bincount(group, (a < b)[order])
+    wrong = np.empty(len(a), bool)
+    wrong[order] = ((np.bincount(group) != 2) | (forward != 1))[group]
+    return wrong
+
+
+def fan_counts(faces: np.ndarray, n: int | None = None) -> np.ndarray:
+    """(n,): how many fans each vertex's faces form (0 for a vertex no face uses; ``n``: more than
+    the largest vertex index).  Exact for a vertex whose every edge has two faces, one each way: a
+    corner is joined only to corners of its own vertex, so another vertex's faulty edge changes
+    nothing here."""
+    n = int(faces.max()) + 1 if n is None else n
+    f = len(faces)
+    corner = np.arange(3 * f).reshape(f, 3)                     # corner (face, j) holds vertex faces[face, j]
+    # the corner at the start of each directed edge v -> w, and at the end of its reverse w -> v
+    key = faces.ravel().astype(np.int64) * n + np.roll(faces, -1, axis=1).ravel()
+    back = np.roll(corner, -1, axis=1).ravel()                  # the corner of w in the same face
+    order = np.argsort(key)
+    rev = np.roll(faces, -1, axis=1).ravel().astype(np.int64) * n + faces.ravel()
+    partner = order[np.minimum(np.searchsorted(key[order], rev), 3 * f - 1)]   # the edge w -> v, where there is one
+    paired = key[partner] == rev
+    # corners of v around the shared edge: (v in this face) ~ (v at the end of the partner edge)
+    graph = coo_matrix((np.ones(int(paired.sum()), np.int8), (corner.ravel()[paired], back[partner][paired])),
+                       shape=(3 * f, 3 * f))
+    _, fan = connected_components(graph, directed=False)
+    pairs = np.unique(faces.ravel().astype(np.int64) * (3 * f) + fan)
+    return np.bincount(pairs // (3 * f), minlength=n)
 
 
 def is_manifold(faces: np.ndarray) -> bool:
@@ -48,23 +83,7 @@ def is_manifold(faces: np.ndarray) -> bool:
     around it (no two surfaces pinched at one vertex): a closed oriented 2-manifold."""
     if not is_closed(faces):
         return False
-    if not len(faces):
-        return True
-
-    f = len(faces)
-    n = int(faces.max()) + 1
-    corner = np.arange(3 * f).reshape(f, 3)                     # corner (face, j) holds vertex faces[face, j]
-    # the corner at the start of each directed edge v -> w, and at the end of its reverse w -> v
-    start = corner.ravel()
-    key = faces.ravel() * n + np.roll(faces, -1, axis=1).ravel()
-    back = np.roll(corner, -1, axis=1).ravel()                  # the corner of w in the same face
-    order = np.argsort(key)
-    rev_key = np.roll(faces, -1, axis=1).ravel() * n + faces.ravel()
-    partner = order[np.searchsorted(key[order], rev_key)]       # the face edge w -> v, seen from v -> w
-    # corners of v around the shared edge: (v in this face) ~ (v at the end of the partner edge)
-    graph = coo_matrix((np.ones(3 * f, np.int8), (start, back[partner])), shape=(3 * f, 3 * f))
-    fans, _ = connected_components(graph, directed=False)
-    return fans == len(np.unique(faces))
+    return not len(faces) or bool((fan_counts(faces) <= 1).all())
 
 
 def is_closed_embedded(vertices: np.ndarray, faces: np.ndarray) -> bool:

@@ -24,6 +24,7 @@ from scipy.sparse.csgraph import connected_components
 
 from ..octree.jit import compiled
 from ..octree.parallel import run_parts
+from .checks import edge_faults, fan_counts
 from .grid import Grid, Leaves
 
 FLAT = 0.2
@@ -304,18 +305,10 @@ def _failures(tris: np.ndarray, source: np.ndarray, qn: np.ndarray, pos: np.ndar
     bad[tris[order[1:][same]].ravel()] = True
     bad[tris[order[:-1][same]].ravel()] = True
     # each edge: exactly two faces, one each way
-    a = tris.ravel()
-    b = np.roll(tris, -1, axis=1).ravel()
-    undirected = np.minimum(a, b) * count + np.maximum(a, b)
-    order = np.argsort(undirected, kind="stable")
-    sk = undirected[order]
-    starts = np.r_[True, sk[1:] != sk[:-1]]
-    group = np.cumsum(starts) - 1
-    size = np.bincount(group)
-    forward = np.bincount(group, (a < b)[order])
-    wrong = ((size != 2) | (forward != 1))[group] & (whole[a[order]] | whole[b[order]])
-    bad[a[order][wrong]] = True
-    bad[b[order][wrong]] = True
+    a, b = tris.ravel(), np.roll(tris, -1, axis=1).ravel()
+    wrong = edge_faults(tris, count) & (whole[a] | whole[b])
+    bad[a[wrong]] = True
+    bad[b[wrong]] = True
     # faces turned over, or without area
     p = pos[tris]
     n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
@@ -323,23 +316,4 @@ def _failures(tris: np.ndarray, source: np.ndarray, qn: np.ndarray, pos: np.ndar
     over = np.einsum("ij,ij->i", n, qn[source]) <= FOLD * length
     merged = (members[tris] > 1).any(1)
     bad[tris[merged & (over | (length <= 0))].ravel()] = True
-    return bad | _pinched(tris, count)           # a vertex with a wrong edge is bad already; the others' fans are whole
-
-
-def _pinched(tris: np.ndarray, count: int) -> np.ndarray:
-    """(count,) bool: vertices whose faces form more than one fan, exact for those whose every
-    edge has two faces, one each way (a corner is joined only to corners of its own vertex, so
-    another vertex's wrong edge changes nothing here)."""
-    f = len(tris)
-    corner = np.arange(3 * f).reshape(f, 3)
-    key = tris.ravel() * count + np.roll(tris, -1, axis=1).ravel()
-    back = np.roll(corner, -1, axis=1).ravel()
-    order = np.argsort(key)
-    rev = np.roll(tris, -1, axis=1).ravel() * count + tris.ravel()
-    partner = order[np.minimum(np.searchsorted(key[order], rev), 3 * f - 1)]
-    paired = key[partner] == rev
-    graph = coo_matrix((np.ones(int(paired.sum()), np.int8), (corner.ravel()[paired], back[partner][paired])),
-                       shape=(3 * f, 3 * f))
-    _, fan = connected_components(graph, directed=False)
-    pairs = np.unique(tris.ravel().astype(np.int64) * (3 * f) + fan)
-    return np.bincount(pairs // (3 * f), minlength=count) > 1
+    return bad | (fan_counts(tris, count) > 1)   # a vertex with a wrong edge is bad already; the others' fans are whole
