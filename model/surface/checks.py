@@ -9,6 +9,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from ..octree.jit import compiled
+
 WELD = 1e-7
 """Vertices closer than this share of the bounding box's diagonal are one point to a reader that
 merges by position (trimesh merges at 1e-8 absolute; Blender's "merge by distance" at 1e-4 of a
@@ -41,41 +43,92 @@ def is_closed(faces: np.ndarray) -> bool:
 def edge_faults(faces: np.ndarray, n: int | None = None) -> np.ndarray:
     """(3F,) bool, one per directed edge ``faces[i, j] -> faces[i, (j + 1) % 3]`` (in the order of
     ``faces.ravel()``): its edge does not have exactly two faces that traverse it in opposite
-    directions.  ``n``: more than the largest vertex index."""
+    directions (the edge ``v -> w`` once and ``w -> v`` once).  ``n``: more than the largest
+    vertex index."""
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
     n = int(faces.max()) + 1 if n is None else n
-    a = faces.ravel().astype(np.int64)
-    b = np.roll(faces, -1, axis=1).ravel().astype(np.int64)
-    undirected = np.minimum(a, b) * n + np.maximum(a, b)
-    order = np.argsort(undirected, kind="stable")
-    sorted_key = undirected[order]
-    group = np.cumsum(np.r_[True, sorted_key[1:] != sorted_key[:-1]]) - 1
-    forward = np.bincount(group, (a < b)[order])
-    wrong = np.empty(len(a), bool)
-    wrong[order] = ((np.bincount(group) != 2) | (forward != 1))[group]
-    return wrong
+    if not len(faces):
+        return np.zeros(0, bool)
+    start, nxt, _ = _corners(faces, n)
+    return _edge_faults(faces, start, nxt)
 
 
 def fan_counts(faces: np.ndarray, n: int | None = None) -> np.ndarray:
     """(n,): how many fans each vertex's faces form (0 for a vertex no face uses; ``n``: more than
-    the largest vertex index).  Exact for a vertex whose every edge has two faces, one each way: a
-    corner is joined only to corners of its own vertex, so another vertex's faulty edge changes
-    nothing here."""
+    the largest vertex index): two faces at a vertex ``v`` are in one fan when one has the edge
+    ``v -> w`` and the other ``w -> v``.  Exact for a vertex whose every edge has two faces, one
+    each way (a vertex with a faulty edge is not a manifold's anyway)."""
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
     n = int(faces.max()) + 1 if n is None else n
-    f = len(faces)
-    corner = np.arange(3 * f).reshape(f, 3)                     # corner (face, j) holds vertex faces[face, j]
-    # the corner at the start of each directed edge v -> w, and at the end of its reverse w -> v
-    key = faces.ravel().astype(np.int64) * n + np.roll(faces, -1, axis=1).ravel()
-    back = np.roll(corner, -1, axis=1).ravel()                  # the corner of w in the same face
-    order = np.argsort(key)
-    rev = np.roll(faces, -1, axis=1).ravel().astype(np.int64) * n + faces.ravel()
-    partner = order[np.minimum(np.searchsorted(key[order], rev), 3 * f - 1)]   # the edge w -> v, where there is one
-    paired = key[partner] == rev
-    # corners of v around the shared edge: (v in this face) ~ (v at the end of the partner edge)
-    graph = coo_matrix((np.ones(int(paired.sum()), np.int8), (corner.ravel()[paired], back[partner][paired])),
-                       shape=(3 * f, 3 * f))
-    _, fan = connected_components(graph, directed=False)
-    pairs = np.unique(faces.ravel().astype(np.int64) * (3 * f) + fan)
-    return np.bincount(pairs // (3 * f), minlength=n)
+    if not len(faces):
+        return np.zeros(n, np.int64)
+    start, nxt, prv = _corners(faces, n)
+    return _fan_counts(start, nxt, prv)
+
+
+@compiled
+def _corners(faces: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each vertex's corners, grouped by vertex (``start``: (n + 1,) offsets, vertices ascending,
+    each vertex's corners in the order of ``faces.ravel()``): the next and the previous vertex
+    of the corner's face."""
+    start = np.zeros(n + 1, np.int64)
+    for v in faces.ravel():
+        start[v + 1] += 1
+    for v in range(n):
+        start[v + 1] += start[v]
+    fill = start[:-1].copy()
+    nxt = np.empty(3 * len(faces), np.int64)
+    prv = np.empty(3 * len(faces), np.int64)
+    for f in range(len(faces)):
+        for j in range(3):
+            v = faces[f, j]
+            nxt[fill[v]] = faces[f, (j + 1) % 3]
+            prv[fill[v]] = faces[f, (j + 2) % 3]
+            fill[v] += 1
+    return start, nxt, prv
+
+
+@compiled
+def _edge_faults(faces: np.ndarray, start: np.ndarray, nxt: np.ndarray) -> np.ndarray:
+    wrong = np.empty(3 * len(faces), np.bool_)
+    for f in range(len(faces)):
+        for j in range(3):
+            a, b = faces[f, j], faces[f, (j + 1) % 3]
+            ab = 0
+            for s in range(start[a], start[a + 1]):
+                ab += nxt[s] == b
+            ba = 0
+            for s in range(start[b], start[b + 1]):
+                ba += nxt[s] == a
+            wrong[3 * f + j] = not (ab == 1 and ba == 1)
+    return wrong
+
+
+@compiled
+def _fan_counts(start: np.ndarray, nxt: np.ndarray, prv: np.ndarray) -> np.ndarray:
+    n = len(start) - 1
+    out = np.zeros(n, np.int64)
+    parent = np.empty(64, np.int64)
+    for v in range(n):
+        a, d = start[v], start[v + 1] - start[v]
+        if d > len(parent):
+            parent = np.empty(2 * d, np.int64)
+        for i in range(d):
+            parent[i] = i
+        fans = d
+        for i in range(d):                          # the face with v -> w and the one with w -> v
+            for j in range(d):
+                if i != j and nxt[a + i] == prv[a + j]:
+                    ri, rj = i, j
+                    while parent[ri] != ri:
+                        ri = parent[ri]
+                    while parent[rj] != rj:
+                        rj = parent[rj]
+                    if ri != rj:
+                        parent[rj] = ri
+                        fans -= 1
+        out[v] = fans
+    return out
 
 
 def is_manifold(faces: np.ndarray) -> bool:

@@ -15,18 +15,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .grid import CORNER_OFFSETS, Grid, Leaves
-from .sign import fill_cavities
+from .flood import configurations, repaired
+from .grid import Grid, Leaves
 from .tables import COMPONENTS, CORNER_COMPONENT, REPAIR
-
-
-def configurations(inside: np.ndarray) -> np.ndarray:
-    """The 8-bit configuration of every cell (bit c set when corner c is inside)."""
-    mx, my, mz = (s - 1 for s in inside.shape)
-    config = np.zeros((mx, my, mz), np.uint8)
-    for c, (x, y, z) in enumerate(CORNER_OFFSETS):
-        config |= inside[x:x + mx, y:y + my, z:z + mz].astype(np.uint8) << np.uint8(c)
-    return config
 
 
 def repair(inside: np.ndarray, max_rounds: int = 64) -> tuple[np.ndarray, np.ndarray, int]:
@@ -34,23 +25,9 @@ def repair(inside: np.ndarray, max_rounds: int = 64) -> tuple[np.ndarray, np.nda
     region is cut off from the border (a repair can close one); returns the corners, the cells'
     configurations and how many corners were turned.  Corners only ever turn inside (never those
     of the grid's border), so this ends; in the unseen case that it runs out of rounds, the mesh
-    is made as it stands and :func:`model.surface.is_closed` says whether it is closed."""
-    inside = inside.copy()
-    turned = 0
-    for _ in range(max_rounds):
-        config = configurations(inside)
-        fix = REPAIR[config]
-        cells = np.argwhere(fix >= 0)
-        corner = cells + CORNER_OFFSETS[fix[cells[:, 0], cells[:, 1], cells[:, 2]]]
-        corner = corner[np.all((corner > 0) & (corner < np.array(inside.shape) - 1), axis=1)]
-        if not len(corner):
-            filled = fill_cavities(inside)                      # a repair may have closed a pocket
-            if np.array_equal(filled, inside):
-                return inside, config, turned
-            inside = filled
-            continue
-        inside[corner[:, 0], corner[:, 1], corner[:, 2]] = True
-        turned += len(np.unique(corner, axis=0))
+    is made as it stands and :func:`model.surface.is_closed` says whether it is closed.  Compiled
+    (:func:`.flood.repaired`): each round re-judges only the cells around the corners turned."""
+    inside, turned, _ = repaired(inside, REPAIR, max_rounds)
     return inside, configurations(inside), turned
 
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from .flood import dilated, eroded, reached
 from .grid import Grid, Leaves
 
 SIX = ndimage.generate_binary_structure(3, 1)
@@ -97,10 +98,8 @@ def chosen_seal(shares: list[float]) -> int:
 def _flood(far: np.ndarray, seal: int) -> np.ndarray:
     """The far corners reached from the grid's border through corners at least ``seal`` steps
     from the plane bands, grown back by ``seal`` steps within the far corners."""
-    core = ndimage.binary_erosion(far, SIX, iterations=seal, border_value=1) if seal else far
-    labels, _ = ndimage.label(core, SIX)
-    outside = np.isin(labels, _border_labels(labels))
-    return ndimage.binary_dilation(outside, SIX, iterations=seal, mask=far) if seal else outside
+    outside = reached(eroded(far, seal))
+    return dilated(outside, far, seal)
 
 
 def _touching(mask: np.ndarray) -> np.ndarray:
@@ -120,5 +119,4 @@ def _border_labels(labels: np.ndarray) -> np.ndarray:
 
 def fill_cavities(inside: np.ndarray) -> np.ndarray:
     """``inside`` with every outside region that does not reach the grid's border turned inside."""
-    labels, _ = ndimage.label(~inside, SIX)
-    return inside | ~np.isin(labels, _border_labels(labels))
+    return ~reached(~inside)

@@ -434,9 +434,10 @@ def test_the_warm_up_compiles_the_normal_estimation_before_the_first_scan(models
     search, the octree build and the closed surface have their machine code (a first completion
     or closed-surface request does not spend seconds compiling them)."""
     kernels = ("orient.covariance_rows, orient.spanning_tree, orient.propagate_signs, knn._query, knn._within, "
-               "probe_search._grid_probes, probe_search._edge_probes, clusters._nearest_on_fans")
+               "probe_search._grid_probes, probe_search._edge_probes, clusters._nearest_on_fans, flood._repair_round, "
+               "flood._reached, flood._dilated, checks._fan_counts, checks._edge_faults")
     code = ("import sys; from service.engine import Engine; from service.settings import Settings; "
-            "from model.octree import orient, knn, probe_search; from model.surface import clusters; "
+            "from model.octree import orient, knn, probe_search; from model.surface import checks, clusters, flood; "
             "e = Engine(Settings(models_dir=sys.argv[1])); e.load(); "
             f"before = [len(f.signatures) for f in ({kernels})]; "
             "e.warm_up(); "
@@ -445,4 +446,4 @@ def test_the_warm_up_compiles_the_normal_estimation_before_the_first_scan(models
     out = subprocess.run([sys.executable, "-c", code, str(models_dir)], capture_output=True, text=True, timeout=600,
                          cwd=REPO)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip().splitlines()[-1] == f"{[0] * 8} {[1] * 8}", out.stdout
+    assert out.stdout.strip().splitlines()[-1] == f"{[0] * 13} {[1] * 13}", out.stdout

@@ -1,9 +1,11 @@
 """The closedness and manifoldness checks, against hand-made meshes and trimesh's own."""
 
+from collections import Counter
+
 import numpy as np
 import trimesh
 
-from model.surface.checks import WELD, is_closed, is_closed_embedded, is_manifold, weld
+from model.surface.checks import WELD, edge_faults, fan_counts, is_closed, is_closed_embedded, is_manifold, weld
 
 TETRA = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
 
@@ -72,3 +74,48 @@ def test_a_weld_that_collapses_a_face_is_not_closed():
     squashed = corners.copy()
     squashed[1] = squashed[0] + 1e-9                                # an edge shorter than the weld
     assert is_closed(TETRA) and is_closed_embedded(corners, TETRA) and not is_closed_embedded(squashed, TETRA)
+
+
+def _edge_faults_by_counting(faces: np.ndarray) -> np.ndarray:
+    """The reference: count every directed edge in a dictionary."""
+    count = Counter(zip(faces.ravel().tolist(), np.roll(faces, -1, axis=1).ravel().tolist()))
+    return np.array([not (count[(a, b)] == 1 and count[(b, a)] == 1)
+                     for a, b in zip(faces.ravel().tolist(), np.roll(faces, -1, axis=1).ravel().tolist())])
+
+
+def _fans_by_walking(faces: np.ndarray, v: int) -> int:
+    """The reference: the faces at ``v`` walked across their shared edges (w -> v to v -> w)."""
+    around = [f for f in faces.tolist() if v in f]
+    pairs = [(f[(f.index(v) + 1) % 3], f[(f.index(v) + 2) % 3]) for f in around]     # (next, previous)
+    fans, seen = 0, set()
+    for start in range(len(pairs)):
+        if start in seen:
+            continue
+        fans += 1
+        todo = [start]
+        while todo:
+            i = todo.pop()
+            if i not in seen:
+                seen.add(i)
+                todo += [j for j in range(len(pairs)) if pairs[i][0] == pairs[j][1] or pairs[j][0] == pairs[i][1]]
+    return fans
+
+
+def test_edge_faults_and_fans_agree_with_counting_and_walking_on_damaged_and_pinched_meshes():
+    rng = np.random.default_rng(3)
+    sphere = np.asarray(trimesh.creation.icosphere(1).faces)
+    pinched = np.vstack([sphere, np.where(sphere == 0, 0, sphere + sphere.max() + 1)])   # two spheres at vertex 0
+    for faces in (sphere, pinched, sphere[rng.random(len(sphere)) < 0.9], np.vstack([sphere, sphere[:3, ::-1]]),
+                  np.vstack([sphere, sphere[:4]])):
+        n = int(faces.max()) + 1
+        wrong = edge_faults(faces, n)
+        assert np.array_equal(wrong, _edge_faults_by_counting(faces))
+        sound = np.ones(n, bool)
+        sound[faces.ravel()[wrong]] = False
+        sound[np.roll(faces, -1, axis=1).ravel()[wrong]] = False
+        fans = fan_counts(faces, n)
+        for v in np.flatnonzero(sound):
+            assert fans[v] == _fans_by_walking(faces, v), v
+    counts, used = fan_counts(pinched), np.bincount(pinched.ravel()) > 0
+    assert counts[0] == 2 and (counts[1:][used[1:]] == 1).all() and (counts[~used] == 0).all()
+    assert fan_counts(sphere, sphere.max() + 3)[-2:].tolist() == [0, 0]           # vertices no face uses
