@@ -62,19 +62,42 @@ def quad_normals(verts: np.ndarray, quads: np.ndarray) -> np.ndarray:
 
 def triangulate(verts: np.ndarray, quads: np.ndarray) -> np.ndarray:
     """(2Q, 3): two triangles per quad (consecutive rows), split along the diagonal whose two
-    triangles' normals agree best."""
-    p = verts[quads]
-    n1 = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 0])
-    n2 = np.cross(p[:, 1] - p[:, 0], p[:, 3] - p[:, 0]), np.cross(p[:, 2] - p[:, 1], p[:, 3] - p[:, 1])
+    triangles' normals agree best (the cosine of their angle; the first diagonal on a tie)."""
+    return _triangulate(np.ascontiguousarray(verts, dtype=np.float64), np.ascontiguousarray(quads, dtype=np.int64))
 
-    def agree(a, b):
-        return np.einsum("ij,ij->i", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-30)
 
-    first = agree(*n1) >= agree(*n2)
-    t = np.where(first[:, None, None],
-                 np.stack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], 1),
-                 np.stack([quads[:, [0, 1, 3]], quads[:, [1, 2, 3]]], 1))
-    return t.reshape(-1, 3)
+@compiled
+def _triangulate(verts: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    out = np.empty((2 * len(quads), 3), np.int64)
+    for q in range(len(quads)):
+        a, b, c, d = quads[q, 0], quads[q, 1], quads[q, 2], quads[q, 3]
+        first = _agree(verts, a, b, c, a, c, d) >= _agree(verts, a, b, d, b, c, d)
+        if first:
+            out[2 * q, 0], out[2 * q, 1], out[2 * q, 2] = a, b, c
+            out[2 * q + 1, 0], out[2 * q + 1, 1], out[2 * q + 1, 2] = a, c, d
+        else:
+            out[2 * q, 0], out[2 * q, 1], out[2 * q, 2] = a, b, d
+            out[2 * q + 1, 0], out[2 * q + 1, 1], out[2 * q + 1, 2] = b, c, d
+    return out
+
+
+@compiled
+def _agree(verts, a, b, c, d, e, f) -> float:
+    """The cosine between the normals of triangles ``abc`` and ``def`` (0 where one has no area),
+    its dot product summed as NumPy's ``einsum`` sums three terms here, (x + z) + y."""
+    ux, uy, uz = _normal(verts, a, b, c)
+    vx, vy, vz = _normal(verts, d, e, f)
+    dot = (ux * vx + uz * vz) + uy * vy
+    norms = np.sqrt((ux * ux + uy * uy) + uz * uz) * np.sqrt((vx * vx + vy * vy) + vz * vz)
+    return dot / max(norms, 1e-30)
+
+
+@compiled
+def _normal(verts, a, b, c):
+    """(b - a) x (c - a), as three scalars."""
+    px, py, pz = verts[b, 0] - verts[a, 0], verts[b, 1] - verts[a, 1], verts[b, 2] - verts[a, 2]
+    qx, qy, qz = verts[c, 0] - verts[a, 0], verts[c, 1] - verts[a, 1], verts[c, 2] - verts[a, 2]
+    return py * qz - pz * qy, pz * qx - px * qz, px * qy - py * qx
 
 
 def cluster(verts: np.ndarray, quads: np.ndarray, cell: np.ndarray, grid: Grid, leaves: Leaves) -> Clustered:
@@ -160,12 +183,23 @@ def _attempt(verts: np.ndarray, quads: np.ndarray, qn: np.ndarray, label: np.nda
 
 def _changed(label: np.ndarray, members: np.ndarray, grow: np.ndarray, before: _Merge) -> np.ndarray:
     """The clusters that are not one of ``before``'s with the same members."""
-    count = len(members)
-    low, high = np.full(count, len(before.members)), np.full(count, -1)
-    np.minimum.at(low, label, before.label)
-    np.maximum.at(high, label, before.label)
-    same = (low == high) & (members == before.members[np.minimum(low, len(before.members) - 1)])
-    return ~same | (np.bincount(label, grow, minlength=count) > 0)
+    return _changed_clusters(label, members, grow, before.label, before.members)
+
+
+@compiled
+def _changed_clusters(label, members, grow, old_label, old_members) -> np.ndarray:
+    count, old = len(members), len(old_members)
+    low, high = np.full(count, old), np.full(count, -1)
+    grown = np.zeros(count, np.bool_)
+    for i in range(len(label)):
+        c = label[i]
+        low[c] = min(low[c], old_label[i])
+        high[c] = max(high[c], old_label[i])
+        grown[c] |= grow[i]
+    out = np.empty(count, np.bool_)
+    for c in range(count):
+        out[c] = low[c] != high[c] or members[c] != old_members[min(low[c], old - 1)] or grown[c]
+    return out
 
 
 def _labels(edges: np.ndarray, leaf: np.ndarray, size: np.ndarray, fine: np.ndarray, front: np.ndarray) -> np.ndarray:
@@ -287,6 +321,18 @@ def _faces(cq: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     return tris, source, folded
 
 
+def duplicate_faces(tris: np.ndarray, count: int) -> np.ndarray:
+    """(F,) bool: the triangles on the same three vertices as another (``count``: more than the
+    largest vertex index; the key is made in 64 bits whatever the indices' type)."""
+    key = np.sort(tris, axis=1).astype(np.int64)
+    key = (key[:, 0] * count + key[:, 1]) * count + key[:, 2]
+    order = np.argsort(key)
+    same = key[order][1:] == key[order][:-1]
+    out = np.zeros(len(tris), bool)
+    out[order[1:][same]] = out[order[:-1][same]] = True
+    return out
+
+
 def _failures(tris: np.ndarray, source: np.ndarray, qn: np.ndarray, pos: np.ndarray, members: np.ndarray,
               whole: np.ndarray) -> np.ndarray:
     """(count,) bool: the vertices at which the triangles are not a closed 2-manifold, or whose
@@ -297,13 +343,7 @@ def _failures(tris: np.ndarray, source: np.ndarray, qn: np.ndarray, pos: np.ndar
     bad = np.zeros(count, bool)
     if not len(tris):
         return bad
-    # two faces on the same three vertices
-    key = np.sort(tris, axis=1)
-    key = (key[:, 0] * count + key[:, 1]) * count + key[:, 2]
-    order = np.argsort(key)
-    same = key[order][1:] == key[order][:-1]
-    bad[tris[order[1:][same]].ravel()] = True
-    bad[tris[order[:-1][same]].ravel()] = True
+    bad[tris[duplicate_faces(tris, count)].ravel()] = True
     # each edge: exactly two faces, one each way
     a, b = tris.ravel(), np.roll(tris, -1, axis=1).ravel()
     wrong = edge_faults(tris, count) & (whole[a] | whole[b])

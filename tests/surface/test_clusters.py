@@ -11,7 +11,7 @@ from trimesh.triangles import closest_point
 from model.octree import build_octree
 from model.surface import signed_grid, watertight_mesh
 from model.surface.checks import is_closed_embedded
-from model.surface.clusters import TOLERANCE, _failures, cluster
+from model.surface.clusters import TOLERANCE, _failures, cluster, duplicate_faces
 from model.surface.dmc import contour
 
 from ..meshes import mesh_path
@@ -126,3 +126,12 @@ def test_a_merge_that_is_not_closed_gives_the_unmerged_contour(monkeypatch):
     m = watertight_mesh(o)
     assert m.closed and len(m.faces) == len(unmerged.faces)
     assert np.array_equal(m.vertices, unmerged.vertices)
+
+
+def test_duplicate_faces_are_found_whatever_the_index_type_and_only_they():
+    """Indices of 32 bits with more than 2^16 vertices: a key of three indices needs 64 bits (a
+    key made in 32 bits wraps, and faces (0, b, c) and (1, b, c) would look alike)."""
+    count = 1 << 16
+    tris = np.array([[0, 7, 9], [1, 7, 9], [9, 1, 7], [5, 6, count - 1]], np.int32)
+    assert duplicate_faces(tris, count).tolist() == [False, True, True, False]
+    assert not duplicate_faces(tris[:2], count).any()
