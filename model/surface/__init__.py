@@ -18,14 +18,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from ..octree import Octree
 from ..octree.patches import patch_mesh
 from .checks import is_closed, is_closed_embedded
 from .clusters import cluster, triangulate
 from .dmc import apart, contour
+from .graph import components
 from .grid import Grid, Leaves, build_grid, leaves_of, rasterise
 from .orient import orient
 from .sign import inside_corners
@@ -131,8 +130,7 @@ def drop_small_components(nverts: int, faces: np.ndarray, min_faces: int) -> tup
     if not len(faces):
         return np.zeros(nverts, bool), faces
     edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]])
-    graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(nverts, nverts))
-    _, label = connected_components(graph, directed=False)
+    label = components(nverts, edges[:, 0], edges[:, 1])
     size = np.bincount(label[faces[:, 0]], minlength=label.max() + 1)
     faces = faces[size[label[faces[:, 0]]] >= min_faces]
     used = np.zeros(nverts, bool)

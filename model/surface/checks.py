@@ -5,11 +5,9 @@ vertices by position sees it (:func:`is_closed_embedded`)."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from ..octree.jit import compiled
+from .graph import close_pairs, components
 
 WELD = 1e-7
 """Vertices closer than this share of the bounding box's diagonal are one point to a reader that
@@ -23,12 +21,10 @@ def weld(vertices: np.ndarray, faces: np.ndarray, tolerance: float = WELD) -> np
     if not len(vertices):
         return faces
     diag = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
-    pairs = cKDTree(vertices).query_pairs(tolerance * max(diag, 1e-300), output_type="ndarray")
+    pairs = close_pairs(vertices, tolerance * max(diag, 1e-300))
     if not len(pairs):
         return faces
-    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(vertices),) * 2)
-    _, label = connected_components(graph, directed=False)
-    return label[faces]
+    return components(len(vertices), pairs[:, 0], pairs[:, 1])[faces]
 
 
 def is_closed(faces: np.ndarray) -> bool:

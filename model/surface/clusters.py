@@ -19,12 +19,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from ..octree.jit import compiled
 from ..octree.parallel import run_parts
 from .checks import edge_faults, fan_counts
+from .graph import components
 from .grid import Grid, Leaves
 
 FLAT = 0.2
@@ -214,8 +213,7 @@ def _labels(edges: np.ndarray, leaf: np.ndarray, size: np.ndarray, fine: np.ndar
         key = np.unique(np.column_stack([head, block]), axis=0, return_inverse=True)[1].ravel()
     a, b = edges[:, 0], edges[:, 1]
     join = (size[a] > 1) & (key[a] == key[b]) & (leaf[a] >= 0)
-    graph = coo_matrix((np.ones(int(join.sum()), np.int8), (a[join], b[join])), shape=(len(leaf),) * 2)
-    return connected_components(graph, directed=False)[1]
+    return components(len(leaf), a[join], b[join])
 
 
 def _deviation(verts: np.ndarray, label: np.ndarray, which: np.ndarray, tris: np.ndarray,
@@ -256,8 +254,9 @@ def _nearest_on_fans(points, start, count, fan, tris, pos, first, last, dist, of
     for i in range(first, last):
         px, py, pz = points[i, 0], points[i, 1], points[i, 2]
         for j in range(start[i], start[i] + count[i]):
-            t = tris[fan[j]]
-            qx, qy, qz = _closest_on_triangle(px, py, pz, pos[t[0]], pos[t[1]], pos[t[2]])
+            a, b, c = tris[fan[j], 0], tris[fan[j], 1], tris[fan[j], 2]
+            qx, qy, qz = _closest_on_triangle(px, py, pz, pos[a, 0], pos[a, 1], pos[a, 2], pos[b, 0], pos[b, 1],
+                                              pos[b, 2], pos[c, 0], pos[c, 1], pos[c, 2])
             d = np.sqrt((px - qx) ** 2 + (py - qy) ** 2 + (pz - qz) ** 2)
             if d < dist[i]:
                 dist[i] = d
@@ -265,37 +264,37 @@ def _nearest_on_fans(points, start, count, fan, tris, pos, first, last, dist, of
 
 
 @compiled
-def _closest_on_triangle(px, py, pz, a, b, c):
+def _closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     """The point of triangle ``abc`` nearest ``p`` (Ericson, "Real-Time Collision Detection",
-    5.1.5), as three scalars."""
-    abx, aby, abz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-    acx, acy, acz = c[0] - a[0], c[1] - a[1], c[2] - a[2]
-    d1, d2 = _along(abx, aby, abz, acx, acy, acz, px - a[0], py - a[1], pz - a[2])
+    5.1.5), as three scalars (every argument a scalar: no array views in the inner loop)."""
+    abx, aby, abz = bx - ax, by - ay, bz - az
+    acx, acy, acz = cx - ax, cy - ay, cz - az
+    d1, d2 = _along(abx, aby, abz, acx, acy, acz, px - ax, py - ay, pz - az)
     if d1 <= 0.0 and d2 <= 0.0:
-        return a[0], a[1], a[2]
-    d3, d4 = _along(abx, aby, abz, acx, acy, acz, px - b[0], py - b[1], pz - b[2])
+        return ax, ay, az
+    d3, d4 = _along(abx, aby, abz, acx, acy, acz, px - bx, py - by, pz - bz)
     if d3 >= 0.0 and d4 <= d3:
-        return b[0], b[1], b[2]
+        return bx, by, bz
     vc = d1 * d4 - d3 * d2
     if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
         v = d1 / (d1 - d3) if d1 > d3 else 0.0
-        return a[0] + abx * v, a[1] + aby * v, a[2] + abz * v
-    d5, d6 = _along(abx, aby, abz, acx, acy, acz, px - c[0], py - c[1], pz - c[2])
+        return ax + abx * v, ay + aby * v, az + abz * v
+    d5, d6 = _along(abx, aby, abz, acx, acy, acz, px - cx, py - cy, pz - cz)
     if d6 >= 0.0 and d5 <= d6:
-        return c[0], c[1], c[2]
+        return cx, cy, cz
     vb = d5 * d2 - d1 * d6
     if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
         w = d2 / (d2 - d6) if d2 > d6 else 0.0
-        return a[0] + acx * w, a[1] + acy * w, a[2] + acz * w
+        return ax + acx * w, ay + acy * w, az + acz * w
     va = d3 * d6 - d5 * d4
     if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
         w = (d4 - d3) / ((d4 - d3) + (d5 - d6)) if (d4 - d3) + (d5 - d6) > 0.0 else 0.0
-        return b[0] + (c[0] - b[0]) * w, b[1] + (c[1] - b[1]) * w, b[2] + (c[2] - b[2]) * w
+        return bx + (cx - bx) * w, by + (cy - by) * w, bz + (cz - bz) * w
     total = va + vb + vc
     if total <= 0.0:                                              # no area: its first corner
-        return a[0], a[1], a[2]
+        return ax, ay, az
     v, w = vb / total, vc / total
-    return a[0] + abx * v + acx * w, a[1] + aby * v + acy * w, a[2] + abz * v + acz * w
+    return ax + abx * v + acx * w, ay + aby * v + acy * w, az + abz * v + acz * w
 
 
 @compiled

@@ -13,9 +13,9 @@ edges and corners where two or three leaf planes meet stay sharp.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .flood import configurations, repaired
+from .graph import close_pairs
 from .grid import Grid, Leaves
 from .tables import COMPONENTS, CORNER_COMPONENT, REPAIR
 
@@ -88,7 +88,7 @@ def apart(verts: np.ndarray, faces: np.ndarray, cell_centre: np.ndarray, h: floa
     same mesh.  Vertices move towards points inside the unit cube, so they stay in it."""
     out = verts
     for r in range(rounds):
-        pairs = cKDTree(out).query_pairs(0.1 * APART * h, output_type="ndarray")
+        pairs = close_pairs(out, 0.1 * APART * h)
         if not len(pairs):
             break
         near = np.unique(pairs) if r == 0 else np.unique(pairs.min(1))

@@ -435,9 +435,10 @@ def test_the_warm_up_compiles_the_normal_estimation_before_the_first_scan(models
     or closed-surface request does not spend seconds compiling them)."""
     kernels = ("orient.covariance_rows, orient.spanning_tree, orient.propagate_signs, knn._query, knn._within, "
                "probe_search._grid_probes, probe_search._edge_probes, clusters._nearest_on_fans, flood._repair_round, "
-               "flood._reached, flood._dilated, checks._fan_counts, checks._edge_faults")
+               "flood._reached, flood._dilated, checks._fan_counts, checks._edge_faults, graph._components, graph._close_pairs, "
+               "clusters._triangulate")
     code = ("import sys; from service.engine import Engine; from service.settings import Settings; "
-            "from model.octree import orient, knn, probe_search; from model.surface import checks, clusters, flood; "
+            "from model.octree import orient, knn, probe_search; from model.surface import checks, clusters, flood, graph; "
             "e = Engine(Settings(models_dir=sys.argv[1])); e.load(); "
             f"before = [len(f.signatures) for f in ({kernels})]; "
             "e.warm_up(); "
@@ -446,4 +447,4 @@ def test_the_warm_up_compiles_the_normal_estimation_before_the_first_scan(models
     out = subprocess.run([sys.executable, "-c", code, str(models_dir)], capture_output=True, text=True, timeout=600,
                          cwd=REPO)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip().splitlines()[-1] == f"{[0] * 13} {[1] * 13}", out.stdout
+    assert out.stdout.strip().splitlines()[-1] == f"{[0] * 16} {[1] * 16}", out.stdout

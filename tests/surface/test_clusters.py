@@ -135,3 +135,4 @@ def test_duplicate_faces_are_found_whatever_the_index_type_and_only_they():
     tris = np.array([[0, 7, 9], [1, 7, 9], [9, 1, 7], [5, 6, count - 1]], np.int32)
     assert duplicate_faces(tris, count).tolist() == [False, True, True, False]
     assert not duplicate_faces(tris[:2], count).any()
+
