@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..octree.jit import compiled
 from .flood import configurations, repaired
 from .graph import close_pairs
 from .grid import Grid, Leaves
@@ -160,10 +161,8 @@ def _place(grid: Grid, leaves: Leaves, vertex_cell: np.ndarray, cells: np.ndarra
         lin -= (w * c)[:, None] * n
         mass += w[:, None] * (a_pos + (t * h)[:, None] * direction)
         hits += w
-    v = rings.T.ravel()                                         # every vertex around each edge
-    edge = np.tile(np.arange(len(p)), 4)
-    acc = np.concatenate([quad, lin, mass, hits[:, None]], 1)[edge]
-    tot = np.stack([np.bincount(v, acc[:, j], minlength=nverts) for j in range(acc.shape[1])], 1)
+    tot = _ring_sums(rings, np.concatenate([quad, lin, mass, hits[:, None]], 1), nverts)
+    v, edge = rings.T.ravel(), np.tile(np.arange(len(p)), 4)     # every vertex around each edge
     xx, xy, xz, yy, yz, zz = tot[:, :6].T
     point = tot[:, 9:12] / np.maximum(tot[:, 12:13], 1.0)
     reg = 0.02 * (xx + yy + zz)[:, None] / 3.0 + 1e-12          # the pull towards the mean point
@@ -172,6 +171,19 @@ def _place(grid: Grid, leaves: Leaves, vertex_cell: np.ndarray, cells: np.ndarra
     lo = grid.corner_positions(vertex_cell)
     reach = h * (np.bincount(v, back[edge], minlength=nverts) > 0)   # a back vertex may leave its cell
     return np.clip(x, lo - reach[:, None], lo + h + reach[:, None])
+
+
+@compiled
+def _ring_sums(rings: np.ndarray, rows: np.ndarray, count: int) -> np.ndarray:
+    """(count, C): for every vertex, the sum of ``rows`` (E, C) of the edges whose ring (E, 4) it
+    is in, added ring position by ring position, edge by edge (the order of ``np.bincount`` over
+    ``rings.T.ravel()``: the same sums)."""
+    out = np.zeros((count, rows.shape[1]))
+    for k in range(rings.shape[1]):
+        for e in range(len(rings)):
+            for j in range(rows.shape[1]):
+                out[rings[e, k], j] += rows[e, j]
+    return out
 
 
 def _solve_symmetric(xx, xy, xz, yy, yz, zz, b: np.ndarray) -> np.ndarray:

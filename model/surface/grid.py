@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..octree import LEAF, Octree
+from ..octree.jit import compiled
 
 PAD = 2
 CORNER_OFFSETS = np.array([[c & 1, c >> 1 & 1, c >> 2 & 1] for c in range(8)])
@@ -128,16 +129,26 @@ def build_grid(leaves: Leaves, depth: int, band: float = 1.0, align: int = 1,
         close = np.abs(centre) <= reach
         index, ids, normal, centre = index[close], ids[close], normal[close], centre[close]
         base = index @ strides
-        for off, step in zip(CORNER_OFFSETS - 0.5, corner_step):   # each pass maps the cells to distinct corners
-            v = (centre + (normal @ off) * h).astype(np.float32)
-            at = base + step
-            total[at] += v
-            votes[at] += 1
-            a = np.abs(v)
-            better = a < nearest[at]
-            nearest[at[better]] = a[better]
-            leaf_at[at[better]] = ids[better]
+        values = np.stack([(centre + (normal @ off) * h).astype(np.float32) for off in CORNER_OFFSETS - 0.5])
+        _vote(base, corner_step, values, ids.astype(np.int32), total, votes, nearest, leaf_at)
     near = votes > 0
     value = np.where(near, total / np.maximum(votes, 1), np.inf).astype(np.float32)
     near, value, leaf_at = near.reshape(shape), value.reshape(shape), leaf_at.reshape(shape)
     return Grid(n, origin, owner, near, value, leaf_at)
+
+
+@compiled
+def _vote(base: np.ndarray, corner_step: np.ndarray, values: np.ndarray, ids: np.ndarray, total: np.ndarray,
+          votes: np.ndarray, nearest: np.ndarray, leaf_at: np.ndarray) -> None:
+    """Each cell's plane values ``values`` (8, M) at its corners (flat ``base + corner_step``) added to
+    ``total`` and counted in ``votes``; ``nearest`` and ``leaf_at`` keep the least magnitude and
+    its leaf (the first on a tie), corner offset by corner offset as the cells come."""
+    for k in range(len(corner_step)):
+        for i in range(len(base)):
+            at = base[i] + corner_step[k]
+            v = values[k, i]
+            total[at] += v
+            votes[at] += 1
+            if abs(v) < nearest[at]:
+                nearest[at] = abs(v)
+                leaf_at[at] = ids[i]

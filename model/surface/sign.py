@@ -47,9 +47,10 @@ airplane 0.54 -> 0.54)."""
 def inside_corners(grid: Grid, leaves: Leaves, seals: tuple[int, ...] = (1, 2, 3, 4)) -> np.ndarray:
     """Boolean array over the grid's corners: True inside the shape.  ``seals``: the seal widths
     tried in turn until the flood does not leak (the last one stays)."""
-    normal = leaves.normal[np.maximum(grid.leaf, 0)]
-    margin = np.abs(normal).sum(-1) * grid.h                    # h |n|_1: a face-connected layer
-    decisive = grid.near & (np.abs(grid.value) <= margin)
+    margin = np.abs(leaves.normal).sum(-1) * grid.h              # h |n|_1: a face-connected layer
+    decisive = grid.near.copy()
+    at = np.flatnonzero(grid.near)                                # judged where a plane is near only
+    decisive.ravel()[at] = np.abs(grid.value.ravel()[at]) <= margin[np.maximum(grid.leaf.ravel()[at], 0)]
     plane_inside = decisive & (grid.value < 0)
     far = ~decisive
     floods, shares = [], []
