@@ -170,14 +170,24 @@ def _attempt(verts: np.ndarray, quads: np.ndarray, qn: np.ndarray, label: np.nda
         pos[~changed] = before.pos[before.label[first[~changed]]]
     tris, source, folded = _faces(label[quads], pos)
     normal = facing[first]
-    _, height = _deviation(verts, label, changed & (members > 1), tris, pos, normal)
+    measured = changed & (members > 1)
+    before_lift, height = _deviation(verts, label, measured, tris, pos, normal)
     pos += height[:, None] * normal                               # the fan up to its members, not below them
     ring = changed.copy()
-    ring[tris[changed[tris].any(1)].ravel()] = True
-    far, _ = _deviation(verts, label, ring & (members > 1), tris, pos, normal)
-    near = ring[tris].any(1)
+    ring[tris[_touches(changed, tris)].ravel()] = True
+    lifted = np.zeros(count, bool)                                # a vertex of its fan moved
+    lifted[tris[_touches(height != 0, tris)].ravel()] = True
+    same = measured & ~lifted                                     # measured on the same fan already
+    far, _ = _deviation(verts, label, ring & (members > 1) & ~same, tris, pos, normal)
+    far[same] = before_lift[same]
+    near = _touches(ring, tris)
     bad = _failures(tris[near], source[near], qn, pos, members, ring) | folded | (far > tolerance)
     return _Merge(label, members, pos, first, tris), bad & ring
+
+
+def _touches(mask: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """(F,) bool: the triangles with a vertex in ``mask``."""
+    return mask[tris[:, 0]] | mask[tris[:, 1]] | mask[tris[:, 2]]
 
 
 def _changed(label: np.ndarray, members: np.ndarray, grow: np.ndarray, before: _Merge) -> np.ndarray:
@@ -305,18 +315,49 @@ def _along(abx, aby, abz, acx, acy, acz, dx, dy, dz):
 
 def _faces(cq: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The merged quads' triangles, the fine quad each comes from, and which clusters fold a quad
-    onto itself (two opposite corners merged, the other two not)."""
-    differs = cq != np.roll(cq, -1, axis=1)                       # corner k differs from corner k + 1
-    runs = differs.sum(1)
-    crossed = (cq[:, 0] == cq[:, 2]) | (cq[:, 1] == cq[:, 3])
-    folded = np.zeros(len(pos), bool)
-    folded[cq[(runs == 4) & crossed].ravel()] = True
-    whole = np.flatnonzero((runs == 4) & ~crossed)
-    three = np.flatnonzero(runs == 3)
-    starts = np.roll(differs, 1, axis=1)[three]                   # corner k begins a run
-    tri = cq[three][starts].reshape(-1, 3)
-    tris = np.concatenate([triangulate(pos, cq[whole]), tri])
-    source = np.concatenate([np.repeat(whole, 2), three])
+    onto itself (two opposite corners merged, the other two not).  A quad of four clusters gives
+    two triangles (:func:`triangulate`), one of three the triangle of its runs' first corners;
+    the quads of four first, in order, then those of three."""
+    return _merged_faces(np.ascontiguousarray(cq, dtype=np.int64), np.ascontiguousarray(pos, dtype=np.float64))
+
+
+@compiled
+def _merged_faces(cq: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    q = len(cq)
+    kind = np.zeros(q, np.int64)                  # 4: whole, 3: a triangle, 0: dropped, -1: folded
+    wholes, threes = 0, 0
+    for i in range(q):
+        runs = 0
+        for k in range(4):
+            runs += cq[i, k] != cq[i, (k + 1) % 4]
+        if runs == 4:
+            kind[i] = -1 if cq[i, 0] == cq[i, 2] or cq[i, 1] == cq[i, 3] else 4
+            wholes += kind[i] == 4
+        elif runs == 3:
+            kind[i] = 3
+            threes += 1
+    folded = np.zeros(len(pos), np.bool_)
+    whole = np.empty((wholes, 4), np.int64)
+    tris = np.empty((2 * wholes + threes, 3), np.int64)
+    source = np.empty(2 * wholes + threes, np.int64)
+    w, t = 0, 2 * wholes
+    for i in range(q):
+        if kind[i] == -1:
+            for k in range(4):
+                folded[cq[i, k]] = True
+        elif kind[i] == 4:
+            whole[w] = cq[i]
+            source[2 * w] = source[2 * w + 1] = i
+            w += 1
+        elif kind[i] == 3:
+            m = 0
+            for k in range(4):                    # corner k begins a run
+                if cq[i, k] != cq[i, (k + 3) % 4]:
+                    tris[t, m] = cq[i, k]
+                    m += 1
+            source[t] = i
+            t += 1
+    tris[:2 * wholes] = _triangulate(pos, whole)
     return tris, source, folded
 
 
@@ -353,6 +394,6 @@ def _failures(tris: np.ndarray, source: np.ndarray, qn: np.ndarray, pos: np.ndar
     n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     length = np.linalg.norm(n, axis=1)
     over = np.einsum("ij,ij->i", n, qn[source]) <= FOLD * length
-    merged = (members[tris] > 1).any(1)
+    merged = _touches(members > 1, tris)
     bad[tris[merged & (over | (length <= 0))].ravel()] = True
     return bad | (fan_counts(tris, count) > 1)   # a vertex with a wrong edge is bad already; the others' fans are whole
