@@ -436,7 +436,7 @@ def test_the_warm_up_compiles_the_normal_estimation_before_the_first_scan(models
     kernels = ("orient.covariance_rows, orient.spanning_tree, orient.propagate_signs, knn._query, knn._within, "
                "probe_search._grid_probes, probe_search._edge_probes, clusters._nearest_on_fans, flood._repair_round, "
                "flood._reached, flood._dilated, checks._fan_counts, checks._edge_faults, graph._components, graph._close_pairs, "
-               "clusters._triangulate")
+               "clusters._merged_faces")
     code = ("import sys; from service.engine import Engine; from service.settings import Settings; "
             "from model.octree import orient, knn, probe_search; from model.surface import checks, clusters, flood, graph; "
             "e = Engine(Settings(models_dir=sys.argv[1])); e.load(); "
