@@ -35,11 +35,16 @@ RUN pip install --no-cache-dir -c constraints.txt -e ".[serve]" \
     && python3 -c "import importlib.util as u, sys; sys.exit(u.find_spec('torch') is not None)"
 COPY examples ./examples
 COPY models/bundles ./models/bundles
+# the compiled kernels, once, at the build: a container (read-only, as user 10001) starts its kernel
+# cache from this copy, so its warm-up loads them instead of compiling them where it runs on the
+# build machine's kind of CPU (elsewhere they compile at the warm-up, as without it)
+RUN NUMBA_CACHE_DIR=/opt/numba-seed python3 -m service --warm-up
 
 USER 10001:10001
 ENV AOCNN_HOST=0.0.0.0 \
     AOCNN_PORT=8000 \
-    AOCNN_MODELS_DIR=/app/models/bundles
+    AOCNN_MODELS_DIR=/app/models/bundles \
+    AOCNN_NUMBA_SEED=/opt/numba-seed
 EXPOSE 8000
 # ready = every bundle loaded, verified and warmed up (GET /readyz answers 200)
 HEALTHCHECK --interval=15s --timeout=5s --start-period=120s --retries=3 \

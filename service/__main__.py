@@ -5,6 +5,7 @@ the options override three of them.  Also installed as ``aocnn-serve``."""
 from __future__ import annotations
 
 import sys
+import time
 
 import uvicorn
 from pydantic import ValidationError
@@ -24,6 +25,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--port", type=int, default=None, help="port (default AOCNN_PORT or 8000)")
     ap.add_argument("--models-dir", default=None, help="bundles folder (default AOCNN_MODELS_DIR or models/bundles)")
     ap.add_argument("--settings", action="store_true", help="print the table of AOCNN_* settings and exit")
+    ap.add_argument("--warm-up", action="store_true", help="load, verify and warm up every bundle (compiling the "
+                    "kernels into their cache), then exit without serving: what an image build runs once")
     args = ap.parse_args(argv)
     if args.settings:
         print(settings_table(), end="")
@@ -41,6 +44,11 @@ def main(argv: list[str] | None = None) -> int:
     except StartupError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if args.warm_up:
+        started = time.perf_counter()
+        engine.warm_up()
+        print(f"warmed up {', '.join(sorted(engine.models))} in {time.perf_counter() - started:.1f} s")
+        return 0
     uvicorn.run(create_app(settings, engine), host=settings.host, port=settings.port, log_level="info")
     return 0
 

@@ -14,8 +14,8 @@ PROBE = ("import os; real = os.access; "
          "from numba.core import config; import model.octree.jit; print(repr(config.CACHE_DIR))")
 
 
-def cache_dir(readonly: bool, env_dir: str | None) -> str:
-    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+def cache_dir(readonly: bool, env_dir: str | None, extra: dict[str, str] | None = None) -> str:
+    env = {**{k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}, **(extra or {})}
     if env_dir is not None:
         env["NUMBA_CACHE_DIR"] = env_dir
     out = subprocess.run([sys.executable, "-c", PROBE.format(readonly=readonly)], capture_output=True, text=True,
@@ -26,6 +26,21 @@ def cache_dir(readonly: bool, env_dir: str | None) -> str:
 
 def test_a_read_only_install_caches_in_the_temporary_directory():
     assert cache_dir(True, None) == os.path.join(tempfile.gettempdir(), f"aocnn-numba-{os.getuid()}")
+
+
+def test_a_read_only_install_starts_its_cache_from_the_seed_an_image_build_compiled(tmp_path):
+    """``AOCNN_NUMBA_SEED``: the temporary cache starts as a copy of it (the image's kernels, compiled
+    at its build), once: a cache already there is left as it is."""
+    seed = tmp_path / "seed" / "app" / "model"
+    seed.mkdir(parents=True)
+    (seed / "kernel.nbi").write_bytes(b"index")
+    env = {"AOCNN_NUMBA_SEED": str(tmp_path / "seed"), "TMPDIR": str(tmp_path)}
+    cache = Path(cache_dir(True, None, env))
+    assert cache.parent == tmp_path and (cache / "app" / "model" / "kernel.nbi").read_bytes() == b"index"
+    (cache / "app" / "model" / "kernel.nbi").write_bytes(b"compiled here")
+    assert cache_dir(True, None, env) == str(cache)
+    assert (cache / "app" / "model" / "kernel.nbi").read_bytes() == b"compiled here"
+    assert not list(tmp_path.glob("*.part-*"))
 
 
 def test_a_writable_install_and_a_chosen_folder_are_left_alone():

@@ -349,6 +349,17 @@ def test_python_m_service_exits_2_with_one_line_on_bad_settings_or_bundles(tmp_p
     assert main(["--models-dir", str(tmp_path / "none"), "--port", "70000"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--port 70000 is not valid" in err and "<= 65535" in err
+    assert main(["--warm-up", "--models-dir", str(tmp_path / "none")]) == 2      # nothing to warm up
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "does not exist" in err
+
+
+def test_python_m_service_warm_up_loads_warms_and_exits_without_serving(models_dir, capsys):
+    from service.__main__ import main
+
+    assert main(["--warm-up", "--models-dir", str(models_dir)]) == 0
+    out = capsys.readouterr().out.strip()
+    assert re.fullmatch(r"warmed up [a-z, -]+ in \d+\.\d s", out), out
 
 
 def test_one_source_for_each_limit_and_the_readme_table_is_made_from_it(client):
