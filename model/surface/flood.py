@@ -23,6 +23,11 @@ def reached(free: np.ndarray) -> np.ndarray:
     return _reached(np.ascontiguousarray(free)).reshape(free.shape)
 
 
+def fill_cavities(inside: np.ndarray) -> np.ndarray:
+    """``inside`` with every outside region that does not reach the grid's border turned inside."""
+    return ~reached(~inside)
+
+
 def eroded(mask: np.ndarray, steps: int) -> np.ndarray:
     """``mask`` eroded ``steps`` times by the 6-neighbour cross, beyond the border counting as in
     the mask: the corners whose every corner within ``steps`` grid steps (city-block) is in it."""
@@ -49,7 +54,7 @@ def repaired(inside: np.ndarray, repair: np.ndarray, max_rounds: int) -> tuple[n
     """Rounds of repair on a copy of ``inside``: every cell whose configuration ``repair`` (the
     table: the corner to turn inside, or -1) asks for a repair has that corner turned inside,
     unless it lies on the grid's border, all at once from the round's start; then the next round.
-    When no cell asks any more, enclosed outside regions are filled (:func:`reached`), and if that
+    When no cell asks any more, enclosed outside regions are filled (:func:`fill_cavities`), and if that
     turned corners the rounds go on.  Returns the corners, the distinct corners the rounds turned
     (filling not counted) and the rounds run (``max_rounds`` when they ran out)."""
     out = np.ascontiguousarray(inside).copy()
@@ -58,11 +63,11 @@ def repaired(inside: np.ndarray, repair: np.ndarray, max_rounds: int) -> tuple[n
     mark = np.full(out.size, -1, np.int64)
     turned = 0
     for r in range(max_rounds):
-        corners, cells, count = _repair_round(out, repair, cells, mark, r)
+        cells, count = _repair_round(out, repair, cells, mark, r)
         turned += count
         if count:
             continue
-        filled = ~reached(~out)
+        filled = fill_cavities(out)
         changed = np.flatnonzero((filled != out).ravel())
         if not len(changed):
             return out, turned, r
@@ -96,6 +101,7 @@ def _walk(allowed, seen, queue, head, tail, nx, ny, nz, steps) -> int:
     """Breadth first from ``queue[head:tail]`` into ``allowed`` corners not ``seen`` yet (marking
     them), ``steps`` layers at most (-1: no limit); returns the new tail."""
     syz = ny * nz
+    size, stride = (nx, ny, nz), (syz, nz, 1)
     layer_end = tail
     depth = 0
     while head < tail:
@@ -107,36 +113,16 @@ def _walk(allowed, seen, queue, head, tail, nx, ny, nz, steps) -> int:
         i = queue[head]
         head += 1
         x, rest = divmod(i, syz)
-        y, z = divmod(rest, nz)
-        for k in range(6):
-            if k == 0:
-                if x == 0:
+        at = (x, rest // nz, rest % nz)
+        for a in range(3):                        # the 6 neighbours inside the grid
+            for step in (-1, 1):
+                if not 0 <= at[a] + step < size[a]:
                     continue
-                j = i - syz
-            elif k == 1:
-                if x == nx - 1:
-                    continue
-                j = i + syz
-            elif k == 2:
-                if y == 0:
-                    continue
-                j = i - nz
-            elif k == 3:
-                if y == ny - 1:
-                    continue
-                j = i + nz
-            elif k == 4:
-                if z == 0:
-                    continue
-                j = i - 1
-            else:
-                if z == nz - 1:
-                    continue
-                j = i + 1
-            if allowed[j] and not seen[j]:
-                seen[j] = True
-                queue[tail] = j
-                tail += 1
+                j = i + step * stride[a]
+                if allowed[j] and not seen[j]:
+                    seen[j] = True
+                    queue[tail] = j
+                    tail += 1
     return tail
 
 
@@ -181,8 +167,8 @@ def _configurations(inside: np.ndarray) -> np.ndarray:
 
 @compiled
 def _repair_round(inside, repair, cells, mark, round_id):
-    """One round over ``cells`` (flat cell indices): the corners to turn, turned; returns them,
-    the cells around them (the next round's) and how many distinct corners were turned."""
+    """One round over ``cells`` (flat cell indices): the corners to turn, turned; returns the cells
+    around them (the next round's) and how many distinct corners were turned."""
     nx, ny, nz = inside.shape
     cy, cz = ny - 1, nz - 1
     flat = inside.ravel()
@@ -209,7 +195,7 @@ def _repair_round(inside, repair, cells, mark, round_id):
     corners = found[:n]
     for i in corners:
         flat[i] = True
-    return corners, _cells_around(corners, inside.shape), n
+    return _cells_around(corners, inside.shape), n
 
 
 @compiled

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from .flood import dilated, eroded, reached
+from .flood import dilated, eroded, fill_cavities, reached
 from .grid import Grid, Leaves
 
 SIX = ndimage.generate_binary_structure(3, 1)
@@ -116,8 +116,3 @@ def _border_labels(labels: np.ndarray) -> np.ndarray:
     found = np.unique(np.concatenate([labels[[0, -1]].ravel(), labels[:, [0, -1]].ravel(),
                                       labels[:, :, [0, -1]].ravel()]))
     return found[found > 0]
-
-
-def fill_cavities(inside: np.ndarray) -> np.ndarray:
-    """``inside`` with every outside region that does not reach the grid's border turned inside."""
-    return ~reached(~inside)
