@@ -31,9 +31,12 @@ def is_closed(faces: np.ndarray) -> bool:
     """Every directed edge appears once and its reverse once: closed and consistently wound."""
     if not len(faces):
         return True
-    if (np.bincount(faces.ravel()) == 1).any():     # a vertex of one face: its two edges there are open
-        return False                                # (a patch mesh, at once, without the sort)
-    return not edge_faults(faces).any()
+    return not _lone_vertex(faces) and not edge_faults(faces).any()
+
+
+def _lone_vertex(faces: np.ndarray) -> bool:
+    """A vertex of one face: its two edges there are open (a patch mesh, found at once)."""
+    return bool((np.bincount(faces.ravel()) == 1).any())
 
 
 def edge_faults(faces: np.ndarray, n: int | None = None) -> np.ndarray:
@@ -60,6 +63,16 @@ def fan_counts(faces: np.ndarray, n: int | None = None) -> np.ndarray:
         return np.zeros(n, np.int64)
     start, nxt, prv = _corners(faces, n)
     return _fan_counts(start, nxt, prv)
+
+
+def manifold_faults(faces: np.ndarray, n: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`edge_faults` and :func:`fan_counts` together, from one table of corners."""
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    n = int(faces.max()) + 1 if n is None else n
+    if not len(faces):
+        return np.zeros(0, bool), np.zeros(n, np.int64)
+    start, nxt, prv = _corners(faces, n)
+    return _edge_faults(faces, start, nxt), _fan_counts(start, nxt, prv)
 
 
 @compiled
@@ -130,9 +143,12 @@ def _fan_counts(start: np.ndarray, nxt: np.ndarray, prv: np.ndarray) -> np.ndarr
 def is_manifold(faces: np.ndarray) -> bool:
     """Closed and consistently wound (:func:`is_closed`), and every vertex's faces form a single fan
     around it (no two surfaces pinched at one vertex): a closed oriented 2-manifold."""
-    if not is_closed(faces):
+    if not len(faces):
+        return True
+    if _lone_vertex(faces):
         return False
-    return not len(faces) or bool((fan_counts(faces) <= 1).all())
+    wrong, fans = manifold_faults(faces)
+    return not wrong.any() and bool((fans <= 1).all())
 
 
 def is_closed_embedded(vertices: np.ndarray, faces: np.ndarray) -> bool:

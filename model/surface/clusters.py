@@ -22,7 +22,7 @@ import numpy as np
 
 from ..octree.jit import compiled
 from ..octree.parallel import run_parts
-from .checks import edge_faults, fan_counts
+from .checks import manifold_faults
 from .graph import components
 from .grid import Grid, Leaves
 
@@ -386,7 +386,8 @@ def _failures(tris: np.ndarray, source: np.ndarray, qn: np.ndarray, pos: np.ndar
     bad[tris[duplicate_faces(tris, count)].ravel()] = True
     # each edge: exactly two faces, one each way
     a, b = tris.ravel(), np.roll(tris, -1, axis=1).ravel()
-    wrong = edge_faults(tris, count) & (whole[a] | whole[b])
+    wrong, fans = manifold_faults(tris, count)
+    wrong &= whole[a] | whole[b]
     bad[a[wrong]] = True
     bad[b[wrong]] = True
     # faces turned over, or without area
@@ -396,4 +397,4 @@ def _failures(tris: np.ndarray, source: np.ndarray, qn: np.ndarray, pos: np.ndar
     over = np.einsum("ij,ij->i", n, qn[source]) <= FOLD * length
     merged = _touches(members > 1, tris)
     bad[tris[merged & (over | (length <= 0))].ravel()] = True
-    return bad | (fan_counts(tris, count) > 1)   # a vertex with a wrong edge is bad already; the others' fans are whole
+    return bad | (fans > 1)   # a vertex with a wrong edge is bad already; the others' fans are whole
