@@ -86,8 +86,8 @@ class Engine:
     def warm_up(self) -> None:
         """One inference per model (first calls allocate and optimise), one normal estimation and
         one symmetry search (their kernels compile on their first call: seconds, where no cache
-        was written; the octree build's compile with the models' warm-up); then the service is
-        ready."""
+        was written; the octree build's and the scan fusion's compile with the models' warm-up);
+        then the service is ready."""
         points = _sphere(200)[0]
         estimate_normals(points)
         find_mirror(points)
@@ -98,13 +98,18 @@ class Engine:
                 size = b.image_spec().size
                 latent = rt.encode_image(np.zeros((1, 3, size, size), np.float32))
             elif b.task in (Task.COMPLETION, Task.AUTOENCODER, Task.CLASSIFY):
-                latent, guide = rt.encode_scan(build_octree(_sphere(), b.octree.depth, adaptive=b.octree.adaptive))
+                scan = build_octree(_sphere(), b.octree.depth, adaptive=b.octree.adaptive)
+                latent, guide = rt.encode_scan(scan)
                 if b.task == Task.CLASSIFY:
                     rt.classify(latent)
                     continue
             else:
                 continue
             octree = rt.decode(latent, guide=guide)
+            if b.task == Task.COMPLETION:                    # the fusion with the scan's patches
+                decoded = split_octree(octree, neighbors=False)[0]
+                decoded.normalizations = list(scan.normalizations)
+                keep_scan(decoded, scan)
             if any(octree.leaves_per_depth()):               # first exports import and compile lazily
                 for fmt in ("glb", "gltf", "ply", "obj"):
                     for surface in SURFACES:

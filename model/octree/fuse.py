@@ -11,6 +11,11 @@ trees agree or the finest depth is reached.  So a network leaf the scan saw a co
 patch everywhere the scan has no points, and a coarse scan leaf (whose patch the scan covers: its
 fitting error is below the threshold) keeps the network's leaves away from its plane: the surfaces
 the scan did not see inside that octant.
+
+The fusion walks both trees at once, depth first over the octants either tree splits (compiled
+with numba: a NumPy formulation, one level of both trees at a time, spent 16-24 ms of a
+completion request on a 20,000-point scan, the walk 4 ms); its arithmetic is NumPy's, operation
+for operation, and tests compare every leaf with that formulation bit for bit.
 """
 
 from __future__ import annotations
@@ -20,29 +25,37 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import keys as morton
+from .jit import compiled, inlined
 from .neighbors import build_neighbors
 from .octree import EMPTY, LEAF, PLANE_SCALE, SPLIT, Octree, OctreeLevel
 
-_CLAIMED = np.int8(3)
+_CLAIMED = 3
 """A side's state in an octant its plane passes near but does not cross: no patch, but the other
 side's leaves there are dropped (they draw the same surface)."""
 
 
-@dataclass
-class _Side:
-    """One tree's state over a list of octants of one depth: ``kind`` EMPTY / SPLIT / LEAF /
-    _CLAIMED; ``row`` the octant's node in the tree's level (-1 for an octant inside a leaf of
-    the tree); ``normal`` (unit) and ``level`` (``normal . x``, cube units) the leaf's plane;
-    ``source`` the (depth, row) of the leaf the plane comes from, for its error."""
+@dataclass(frozen=True)
+class _Flat:
+    """One tree's levels up to a depth as flat arrays: node ``r`` of depth ``d`` is row
+    ``start[d] + r`` of ``label``, ``child`` (int64), ``live`` (:func:`_live`), ``plane``,
+    ``error`` and ``npoints``."""
 
-    kind: np.ndarray
-    row: np.ndarray
-    normal: np.ndarray
-    level: np.ndarray
-    source: np.ndarray
+    start: np.ndarray
+    label: np.ndarray
+    child: np.ndarray
+    live: np.ndarray
+    plane: np.ndarray
+    error: np.ndarray
+    npoints: np.ndarray
 
-    def take(self, sel: np.ndarray) -> _Side:
-        return _Side(self.kind[sel], self.row[sel], self.normal[sel], self.level[sel], self.source[sel])
+
+def _flat(tree: Octree, depth: int) -> _Flat:
+    levels = tree.levels[:depth + 1]
+    start = np.concatenate([[0], np.cumsum([len(lv) for lv in levels])]).astype(np.int64)
+    return _Flat(start, np.concatenate([lv.label for lv in levels]),
+                 np.concatenate([lv.child for lv in levels]).astype(np.int64),
+                 np.concatenate(_live(tree, depth)), np.concatenate([lv.plane for lv in levels]),
+                 np.concatenate([lv.error for lv in levels]), np.concatenate([lv.npoints for lv in levels]))
 
 
 def keep_scan(decoded: Octree, scan: Octree, neighbors: bool = False) -> Octree:
@@ -62,30 +75,15 @@ def keep_scan(decoded: Octree, scan: Octree, neighbors: bool = False) -> Octree:
     if scan.depth < decoded.depth:
         raise ValueError(f"the scan's octree (depth {scan.depth}) is shallower than the output ({decoded.depth})")
     depth = decoded.depth
-    trees = (scan, decoded)
-    live = [_live(t, depth) for t in trees]
-    key = np.zeros(1, np.uint64)
-    sides = [_node_side(t.levels[0], np.zeros(1, np.int64), live[i][0], last=depth == 0)
-             for i, t in enumerate(trees)]
+    s, o = _flat(scan, depth), _flat(decoded, depth)
+    at, key, plane, error, npoints = _walk(depth, float(scan.threshold), s.start, s.label, s.child, s.live, s.plane,
+                                           s.error, s.npoints, o.start, o.label, o.child, o.live, o.plane,
+                                           o.error, o.npoints)
     leaves = []
     for d in range(depth + 1):
-        s, o = sides
-        emit_scan = ((s.kind == LEAF) & (o.kind != SPLIT)) if d < depth else s.kind == LEAF
-        emit_out = (o.kind == LEAF) & (s.kind == EMPTY)
-        leaves.append([_leaf_rows(trees[i], d, key[m], side.take(m))
-                       for i, (side, m) in enumerate(((s, emit_scan), (o, emit_out))) if m.any()])
-        if d == depth:
-            break
-        go = (o.kind == SPLIT) | (s.kind == SPLIT)
-        key = morton.child_keys(key[go])
-        sides = [_children(trees[i], d, side.take(go), key, live[i][d + 1], last=d + 1 == depth,
-                           tolerance=scan.threshold if i == 0 else None) for i, side in enumerate(sides)]
+        sel = at == d
+        leaves.append((key[sel], plane[sel], error[sel], npoints[sel]) if sel.any() else None)
     return _from_leaves(decoded, leaves, neighbors)
-
-
-def _centres(keys: np.ndarray, size: float) -> np.ndarray:
-    """Centres (N, 3) of the octants ``keys`` of edge ``size`` (``OctreeLevel.centers`` for a subset)."""
-    return (morton.decode(keys)[0] + 0.5) * size
 
 
 def _live(tree: Octree, depth: int) -> list[np.ndarray]:
@@ -102,91 +100,149 @@ def _live(tree: Octree, depth: int) -> list[np.ndarray]:
     return live
 
 
-def _node_side(level: OctreeLevel, rows: np.ndarray, live: np.ndarray, last: bool) -> _Side:
-    """The state of a tree's own nodes ``rows`` of ``level`` (``live``: per node of the level,
-    whether it holds a patch; at the output's last depth every non-empty node is a leaf)."""
-    kind = level.label[rows].copy()
-    kind[~live[rows]] = EMPTY
-    if last:
-        kind[kind != EMPTY] = LEAF
-    normal = np.zeros((len(rows), 3))
-    plane_level = np.zeros(len(rows))
-    leaf = kind == LEAF                                   # only a leaf's plane is passed on
-    if leaf.any():
-        at = rows[leaf]
-        n = level.plane[at, :3].astype(np.float64)
-        normal[leaf] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-        plane_level[leaf] = (normal[leaf] * level.centers(at)).sum(1) - level.plane_offsets(at)
-    source = np.stack([np.full(len(rows), level.depth), rows], 1)
-    return _Side(kind, rows.astype(np.int64), normal, plane_level, source)
+@inlined
+def _node_state(d: int, r: int, x: int, y: int, z: int, last: bool, start, label, live, plane):
+    """A tree's own node ``r`` of depth ``d`` (octant ``x, y, z``) as a side's state (kind, row,
+    source depth, source row, the unit normal and ``normal . x`` of a leaf's plane, zeros
+    otherwise); at the output's ``last`` depth every non-empty node is a leaf.  Arithmetic in
+    NumPy's order: the normal divided by its norm (at least 1e-12), the level ``n . c - d*
+    sqrt(3)/2 h``."""
+    g = start[d] + r
+    kind = np.int64(label[g]) if live[g] else EMPTY
+    if last and kind != EMPTY:
+        kind = LEAF
+    if kind != LEAF:
+        return kind, r, d, r, 0.0, 0.0, 0.0, 0.0
+    n0, n1, n2 = np.float64(plane[g, 0]), np.float64(plane[g, 1]), np.float64(plane[g, 2])
+    norm = max(np.sqrt(n0 * n0 + n1 * n1 + n2 * n2), 1e-12)
+    n0, n1, n2 = n0 / norm, n1 / norm, n2 / norm
+    size = 1.0 / (1 << d)
+    level = (n0 * ((x + 0.5) * size) + n1 * ((y + 0.5) * size)) + n2 * ((z + 0.5) * size) \
+        - np.float64(plane[g, 3]) * PLANE_SCALE * size
+    return kind, r, d, r, n0, n1, n2, level
 
 
-def _children(tree: Octree, depth: int, side: _Side, child_key: np.ndarray, live: np.ndarray,
-              last: bool, tolerance: float | None) -> _Side:
-    """The states of the eight children (``child_key``, 8 per octant in order) of ``side``'s
-    octants at ``depth``: a split node's children are its nodes (``live``: :func:`_live`'s at the
-    children's depth; all non-empty ones are leaves when ``last``); a leaf's (or claimed) plane
-    passes to the children it crosses as a leaf, to those within ``tolerance`` of it (None: none)
-    as claimed."""
-    n = len(side.kind)
-    up = np.repeat(np.arange(n), 8)
-    lv = tree.levels[depth]
-    kind_up = np.repeat(side.kind, 8)
-    nodes = kind_up == SPLIT
-    rows = np.full(8 * n, -1, np.int64)
-    slot = np.arange(8 * n) & 7
-    rows[nodes] = lv.child[side.row[up[nodes]]].astype(np.int64) * 8 + slot[nodes]
-    out = _Side(np.full(8 * n, EMPTY, np.int8), np.full(8 * n, -1, np.int64), side.normal[up],
-                np.repeat(side.level, 8), side.source[up])
-    if nodes.any():
-        own = _node_side(tree.levels[depth + 1], rows[nodes], live, last=last)
-        for field in ("kind", "row", "normal", "level", "source"):
-            getattr(out, field)[nodes] = getattr(own, field)
-    planes = (kind_up == LEAF) | (kind_up == _CLAIMED)
-    if planes.any():
-        size = 1.0 / (1 << (depth + 1))
-        centre = _centres(child_key[planes], size)
-        gap = np.abs((out.normal[planes] * centre).sum(1) - out.level[planes])
-        reach = 0.5 * size * np.abs(out.normal[planes]).sum(1)
-        kind = np.where(gap <= reach, LEAF, EMPTY).astype(np.int8)
-        if tolerance is not None:
-            kind[(kind == EMPTY) & (gap <= reach + tolerance)] = _CLAIMED
-        kind[(kind == LEAF) & (kind_up[planes] == _CLAIMED)] = _CLAIMED
-        out.kind[planes] = kind
+@inlined
+def _child_state(d: int, slot: int, x: int, y: int, z: int, last: bool, tolerance: float, start, label, child,
+                 live, plane, kind: int, row: int, sd: int, sr: int, n0: float, n1: float, n2: float, level: float):
+    """The state of child ``slot`` (octant ``x, y, z`` at depth ``d + 1``) of a side's octant at
+    depth ``d`` in state (``kind`` ... ``level``): a split node's child is its own node; a leaf's
+    (or claimed) plane passes to the child it crosses as a leaf, to one within ``tolerance`` of it
+    (negative: none) as claimed, elsewhere the child is empty."""
+    if kind == SPLIT:
+        return _node_state(d + 1, child[start[d] + row] * 8 + slot, x, y, z, last, start, label, live, plane)
+    out = EMPTY
+    if kind == LEAF or kind == _CLAIMED:
+        size = 1.0 / (1 << (d + 1))
+        gap = abs((n0 * ((x + 0.5) * size) + n1 * ((y + 0.5) * size)) + n2 * ((z + 0.5) * size) - level)
+        reach = 0.5 * size * ((abs(n0) + abs(n1)) + abs(n2))
+        if gap <= reach:
+            out = _CLAIMED if kind == _CLAIMED else LEAF
+        elif tolerance >= 0 and gap <= reach + tolerance:
+            out = _CLAIMED
+    return out, np.int64(-1), sd, sr, n0, n1, n2, level
+
+
+@inlined
+def _emit(m: int, d: int, key, x: int, y: int, z: int, row: int, sd: int, sr: int, n0: float, n1: float,
+          n2: float, level: float, start, plane, error, npoints, at, keys, planes, errors, counts) -> None:
+    """Leaf ``m`` of the result at depth ``d`` from a side's state: a node's own row as it is; a
+    plane refined from a coarser leaf re-expressed for its octant, with the error of the leaf it
+    came from (depth ``sd``, row ``sr``) and no point count."""
+    at[m], keys[m] = d, key
+    if row >= 0:
+        g = start[d] + row
+        for c in range(4):
+            planes[m, c] = plane[g, c]
+        errors[m], counts[m] = error[g], npoints[g]
+        return
+    size = 1.0 / (1 << d)
+    offset = (n0 * ((x + 0.5) * size) + n1 * ((y + 0.5) * size)) + n2 * ((z + 0.5) * size) - level
+    planes[m, 0], planes[m, 1], planes[m, 2] = n0, n1, n2
+    planes[m, 3] = offset / (PLANE_SCALE * size)
+    errors[m], counts[m] = error[start[sd] + sr], 0
+
+
+@compiled
+def _walk(depth: int, tolerance: float, s_start, s_label, s_child, s_live, s_plane, s_error, s_npoints,
+          o_start, o_label, o_child, o_live, o_plane, o_error, o_npoints):
+    """The leaves of :func:`keep_scan`'s result, walked depth first over the octants either tree
+    splits: (depth, key, plane, error, point count) per leaf.  A side's state: kind, row (-1
+    inside a leaf of its tree), the (depth, row) of the leaf its plane comes from, and that
+    leaf's unit normal and ``normal . x`` (cube units); the stack holds (depth, x, y, z, key) and
+    both sides' states per octant."""
+    cap = 1024
+    at = np.empty(cap, np.int64)
+    keys = np.empty(cap, np.uint64)
+    planes = np.empty((cap, 4), np.float32)
+    errors = np.empty(cap, np.float32)
+    counts = np.empty(cap, np.int32)
+    m = 0
+    top = 8 * (depth + 1) + 1
+    si = np.empty((top, 8), np.int64)           # d, x, y, z, then kind, row, sd, sr of the scan, of the output
+    sf = np.empty((top, 8))                     # n0, n1, n2, level of the scan, of the output
+    sk = np.empty(top, np.uint64)
+    last = depth == 0
+    si[0, :4] = 0
+    si[0, 4], si[0, 5], si[0, 6], si[0, 7], sf[0, 0], sf[0, 1], sf[0, 2], sf[0, 3] = \
+        _node_state(0, 0, 0, 0, 0, last, s_start, s_label, s_live, s_plane)
+    ok, orow, osd, osr, on0, on1, on2, olev = _node_state(0, 0, 0, 0, 0, last, o_start, o_label, o_live, o_plane)
+    sk[0] = 0
+    o_i = np.empty((top, 4), np.int64)
+    o_f = np.empty((top, 4))
+    o_i[0, 0], o_i[0, 1], o_i[0, 2], o_i[0, 3] = ok, orow, osd, osr
+    o_f[0, 0], o_f[0, 1], o_f[0, 2], o_f[0, 3] = on0, on1, on2, olev
+    n = 1
+    while n > 0:
+        n -= 1
+        d, x, y, z, key = si[n, 0], si[n, 1], si[n, 2], si[n, 3], sk[n]
+        sK, sR, sSD, sSR = si[n, 4], si[n, 5], si[n, 6], si[n, 7]
+        s0, s1, s2, sL = sf[n, 0], sf[n, 1], sf[n, 2], sf[n, 3]
+        oK, oR, oSD, oSR = o_i[n, 0], o_i[n, 1], o_i[n, 2], o_i[n, 3]
+        o0, o1, o2, oL = o_f[n, 0], o_f[n, 1], o_f[n, 2], o_f[n, 3]
+        if m + 2 > cap:
+            cap *= 2
+            at, keys, planes = _grown(at, cap), _grown(keys, cap), _grown(planes, cap)
+            errors, counts = _grown(errors, cap), _grown(counts, cap)
+        if sK == LEAF and (oK != SPLIT or d == depth):
+            _emit(m, d, key, x, y, z, sR, sSD, sSR, s0, s1, s2, sL, s_start, s_plane, s_error, s_npoints,
+                  at, keys, planes, errors, counts)
+            m += 1
+        if oK == LEAF and sK == EMPTY:
+            _emit(m, d, key, x, y, z, oR, oSD, oSR, o0, o1, o2, oL, o_start, o_plane, o_error, o_npoints,
+                  at, keys, planes, errors, counts)
+            m += 1
+        if d == depth or not (sK == SPLIT or oK == SPLIT):
+            continue
+        last = d + 1 == depth
+        for slot in range(7, -1, -1):                      # slot 0 on top: visited first
+            cx, cy, cz = 2 * x + (slot >> 2), 2 * y + ((slot >> 1) & 1), 2 * z + (slot & 1)
+            si[n, 0], si[n, 1], si[n, 2], si[n, 3] = d + 1, cx, cy, cz
+            sk[n] = (key << np.uint64(3)) | np.uint64(slot)
+            si[n, 4], si[n, 5], si[n, 6], si[n, 7], sf[n, 0], sf[n, 1], sf[n, 2], sf[n, 3] = _child_state(
+                d, slot, cx, cy, cz, last, tolerance, s_start, s_label, s_child, s_live, s_plane,
+                sK, sR, sSD, sSR, s0, s1, s2, sL)
+            o_i[n, 0], o_i[n, 1], o_i[n, 2], o_i[n, 3], o_f[n, 0], o_f[n, 1], o_f[n, 2], o_f[n, 3] = _child_state(
+                d, slot, cx, cy, cz, last, -1.0, o_start, o_label, o_child, o_live, o_plane,
+                oK, oR, oSD, oSR, o0, o1, o2, oL)
+            n += 1
+    return at[:m], keys[:m], planes[:m], errors[:m], counts[:m]
+
+
+@compiled
+def _grown(a, cap: int):
+    """``a`` copied into a longer array of ``cap`` rows."""
+    out = np.empty((cap,) + a.shape[1:], a.dtype)
+    out[:len(a)] = a
     return out
 
 
-def _leaf_rows(tree: Octree, depth: int, key: np.ndarray, side: _Side):
-    """(keys, planes, errors, point counts) of leaves at ``depth`` from ``side``: a node's own
-    row as it is; a plane refined from a coarser leaf re-expressed for its octant, with the
-    error of the leaf it came from and no point count (not known per child)."""
-    lv = tree.levels[depth]
-    own = side.row >= 0
-    plane = np.zeros((len(key), 4), np.float32)
-    error = np.full(len(key), np.nan, np.float32)
-    npoints = np.zeros(len(key), np.int32)
-    rows = side.row[own]
-    plane[own], error[own], npoints[own] = lv.plane[rows], lv.error[rows], lv.npoints[rows]
-    inherited = np.flatnonzero(~own)
-    if len(inherited):
-        size = lv.size
-        centre = _centres(key[inherited], size)
-        normal = side.normal[inherited]
-        offset = (normal * centre).sum(1) - side.level[inherited]
-        plane[inherited, :3] = normal
-        plane[inherited, 3] = offset / (PLANE_SCALE * size)
-        for d in np.unique(side.source[inherited, 0]):
-            at = inherited[side.source[inherited, 0] == d]
-            error[at] = tree.levels[d].error[side.source[at, 1]]
-    return key, plane, error, npoints
-
-
 def _from_leaves(like: Octree, leaves, neighbors: bool) -> Octree:
-    """The octree whose leaves are, per depth, the given (keys, planes, errors, point counts) (the
-    keys of all depths cover disjoint regions): every ancestor of a leaf split (with all 8
-    children), everything else empty."""
+    """The octree whose leaves are, per depth, the given (keys, planes, errors, point counts) or
+    None (the keys of all depths cover disjoint regions): every ancestor of a leaf split (with all
+    8 children), everything else empty."""
     depth = like.depth
-    parts = [[np.concatenate(c) for c in zip(*p)] if p else None for p in leaves]
+    parts = leaves
     leaf_keys = [p[0] if p else np.zeros(0, np.uint64) for p in parts]
     # the ancestors of the leaves, per depth, bottom up: the parents of the next depth's leaves and splits
     split_keys = [np.zeros(0, np.uint64)] * (depth + 1)

@@ -201,3 +201,47 @@ def test_bad_pairs_are_refused(sphere_case, bad):
     else:
         with pytest.raises(ValueError, match="shallower"):
             keep_scan(whole, build_octree(validate(pts, None), 5, normalization=frame))
+
+
+def _fused_leaves(tree):
+    """{(depth, key): (plane bytes, error bytes, point count)} of every leaf of ``tree``."""
+    return {(lv.depth, int(k)): (p.tobytes(), e.tobytes(), int(c)) for lv in tree.levels
+            for k, p, e, c in zip(lv.key[lv.label == LEAF], lv.plane[lv.label == LEAF],
+                                  lv.error[lv.label == LEAF], lv.npoints[lv.label == LEAF])}
+
+
+def _jittered(tree, seed):
+    """``tree`` with every leaf's plane turned and moved a little (a decoded output's planes)."""
+    out = copy.deepcopy(tree)
+    rng = np.random.default_rng(seed)
+    for lv in out.levels:
+        lv.plane = (lv.plane + rng.normal(0, 0.2, lv.plane.shape) * (lv.label != EMPTY)[:, None]).astype(np.float32)
+    return out
+
+
+@pytest.mark.parametrize("case", ["sphere", "jittered", "box", "deeper scan", "full output", "full scan"])
+def test_the_compiled_walk_gives_the_reference_fusions_leaves_bit_for_bit(sphere_case, case):
+    """Against the plain NumPy fusion (tests/octree/reference_fuse.py): the same leaves, planes,
+    errors and point counts, bit for bit, where the trees agree, where a scan leaf is refined
+    under the output's splits (and the reverse), claimed, or cut from a deeper scan."""
+    from .reference_fuse import reference_leaves
+
+    pts, seen, frame, scan, whole = sphere_case
+    nrm = sphere_points(40_000)[1]
+    if case == "jittered":
+        whole = _jittered(whole, 0)
+    elif case == "box":
+        box = trimesh.creation.box((1.2, 0.7, 0.9))
+        p, f = trimesh.sample.sample_surface(box, 30_000, seed=1)
+        whole = build_octree(validate(p, box.face_normals[f]), 6, normalization=frame)
+    elif case == "deeper scan":
+        scan = scan_octree(validate(pts[seen], nrm[seen]), 7)
+    elif case == "full output":               # every coarse scan leaf refined, its plane claiming nearby octants
+        whole = _jittered(build_octree(validate(pts, nrm), 6, normalization=frame, adaptive=False), 1)
+    elif case == "full scan":                 # every coarse output leaf refined under the scan's splits
+        scan = scan_octree(validate(pts[seen], nrm[seen]), 6, adaptive=False)
+    fused = keep_scan(whole, scan)
+    _check_structure(fused)
+    want = reference_leaves(whole, scan)
+    assert len(want) > 1000
+    assert _fused_leaves(fused) == want
