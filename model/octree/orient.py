@@ -99,13 +99,18 @@ def neighbour_graph(nn: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np
     meets each pair's lower entry after its upper one, with the same weight, and rejects it; the
     upper triangle alone gives the same tree with half the edges to sort."""
     n, k = nn.shape
-    # every directed edge i -> nn[i, j] filed under the lower of its two ends
+    # every directed edge i -> nn[i, j] filed under the lower of its two ends: row i holds first its
+    # own neighbours above i (in neighbour order), then the points above i that have i among theirs
+    # (ascending, as they are filed in point order)
     count = np.zeros(n + 1, np.int64)
+    own = np.zeros(n, np.int64)
     for i in range(n):
         for j in range(1, k):
             t = nn[i, j]
             if t != i:
                 count[min(i, t) + 1] += 1
+                if t > i:
+                    own[i] += 1
     start = np.cumsum(count)
     fill = start[:-1].copy()
     upper = np.empty(start[n], np.int64)
@@ -120,18 +125,25 @@ def neighbour_graph(nn: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np
     cols = np.empty_like(rows)
     m = 0
     for i in range(n):
-        a, b = start[i], start[i + 1]
-        for r in range(a + 1, b):              # insertion sort: a row holds about k entries
+        a, mid, b = start[i], start[i] + own[i], start[i + 1]
+        for r in range(a + 1, mid):            # insertion sort of the own part (at most k - 1 entries)
             v, q = upper[r], r
             while q > a and upper[q - 1] > v:
                 upper[q] = upper[q - 1]
                 q -= 1
             upper[q] = v
-        for r in range(a, b):
-            if r > a and upper[r] == upper[r - 1]:
-                continue
-            rows[m], cols[m] = i, upper[r]
-            m += 1
+        p, q, last = a, mid, -1                # merge the two ascending parts, each pair once
+        while p < mid or q < b:
+            if q >= b or (p < mid and upper[p] <= upper[q]):
+                v = upper[p]
+                p += 1
+            else:
+                v = upper[q]
+                q += 1
+            if v != last:
+                rows[m], cols[m] = i, v
+                m += 1
+                last = v
     weights = np.empty(m)
     for e in range(m):
         weights[e] = _weight(normals, rows[e], cols[e])
