@@ -18,7 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .geometry import bounding_box
-from .jit import compiled
+from .jit import compiled, inlined
 from .parallel import WORKERS, run_parts
 
 MAX_CELLS_PER_AXIS = 128
@@ -71,6 +71,42 @@ def _bucket(points: np.ndarray, lo: np.ndarray, cell: float, g: int) -> tuple[np
     return order, start
 
 
+@inlined
+def _scan_cell(points: np.ndarray, order: np.ndarray, start: np.ndarray, cid: int, x: float, y: float, z: float,
+               k: int, best_d: np.ndarray, best_i: np.ndarray, n_found: int) -> int:
+    """The points of cell ``cid`` offered to the ``k`` best so far (``best_d``, ``best_i``, the
+    first ``n_found`` of them filled, ascending by squared distance, ties by index); returns how
+    many are filled."""
+    for s in range(start[cid], start[cid + 1]):
+        j = order[s]
+        dx = x - points[s, 0]
+        dy = y - points[s, 1]
+        dz = z - points[s, 2]
+        d = dx * dx + dy * dy + dz * dz
+        if n_found == k and (d > best_d[k - 1] or (d == best_d[k - 1] and j > best_i[k - 1])):
+            continue
+        p = n_found if n_found < k else k - 1
+        while p > 0 and (best_d[p - 1] > d or (best_d[p - 1] == d and best_i[p - 1] > j)):
+            best_d[p] = best_d[p - 1]
+            best_i[p] = best_i[p - 1]
+            p -= 1
+        best_d[p] = d
+        best_i[p] = j
+        if n_found < k:
+            n_found += 1
+    return n_found
+
+
+@inlined
+def _side_gap(q: float, lo: float, c: int, o: int, cell: float) -> float:
+    """Along one axis, the distance from ``q`` (in cell ``c``) to the cell ``c + o`` (0 for o = 0),
+    shrunk by the rounding margin of the cells' bounds (a point binned across a rounding)."""
+    if o == 0:
+        return 0.0
+    gap = lo + (c + 1) * cell - q if o > 0 else q - (lo + c * cell)
+    return max(gap, 0.0) * (1.0 - 1e-9)
+
+
 @compiled
 def _query(points: np.ndarray, order: np.ndarray, start: np.ndarray, lo: np.ndarray, cell: float, g: int,
            queries: np.ndarray, rows: np.ndarray, first: int, last: int, k: int, found: np.ndarray,
@@ -78,40 +114,44 @@ def _query(points: np.ndarray, order: np.ndarray, start: np.ndarray, lo: np.ndar
     """The ``k`` nearest points (ties by index) of ``queries[first:last]`` (each inside the
     grid's box), their squared distances, and whether two of those are equal, into rows
     ``rows[first:last]`` of ``found``, ``dist2`` and ``tied``; ``points`` are sorted by cell
-    (``points[s]`` is the input's ``order[s]``)."""
+    (``points[s]`` is the input's ``order[s]``).  The query's cell and the 26 around it are
+    visited nearest first, and those farther than the k-th point found are skipped; then rings of
+    cells farther out until no unvisited cell can hold a nearer point."""
     best_d = np.empty(k)
     best_i = np.empty(k, np.int64)
     c = np.empty(3, np.int64)
+    near_d = np.empty(27)
+    near_c = np.empty(27, np.int64)
     for i in range(first, last):
         x, y, z = queries[i, 0], queries[i, 1], queries[i, 2]
         for a in range(3):
             c[a] = min(max(int((queries[i, a] - lo[a]) / cell), 0), g - 1)
+        m = 0                                               # the occupied cells of the 3x3x3 block, nearest first
+        for ox in range(max(c[0] - 1, 0) - c[0], min(c[0] + 1, g - 1) - c[0] + 1):
+            gx = _side_gap(x, lo[0], c[0], ox, cell)
+            for oy in range(max(c[1] - 1, 0) - c[1], min(c[1] + 1, g - 1) - c[1] + 1):
+                gy = _side_gap(y, lo[1], c[1], oy, cell)
+                for oz in range(max(c[2] - 1, 0) - c[2], min(c[2] + 1, g - 1) - c[2] + 1):
+                    cid = ((c[0] + ox) * g + c[1] + oy) * g + c[2] + oz
+                    if start[cid] == start[cid + 1]:
+                        continue
+                    gz = _side_gap(z, lo[2], c[2], oz, cell)
+                    d = gx * gx + gy * gy + gz * gz
+                    p = m
+                    while p > 0 and near_d[p - 1] > d:
+                        near_d[p] = near_d[p - 1]
+                        near_c[p] = near_c[p - 1]
+                        p -= 1
+                    near_d[p] = d
+                    near_c[p] = cid
+                    m += 1
         n_found = 0
-        r = 0
+        for q in range(m):
+            if n_found == k and near_d[q] > best_d[k - 1]:
+                break                                       # this cell and the rest lie beyond the k-th
+            n_found = _scan_cell(points, order, start, near_c[q], x, y, z, k, best_d, best_i, n_found)
+        r = 1
         while True:
-            for cx in range(max(c[0] - r, 0), min(c[0] + r, g - 1) + 1):
-                for cy in range(max(c[1] - r, 0), min(c[1] + r, g - 1) + 1):
-                    for cz in range(max(c[2] - r, 0), min(c[2] + r, g - 1) + 1):
-                        if max(abs(cx - c[0]), abs(cy - c[1]), abs(cz - c[2])) != r:
-                            continue                        # visited in an earlier ring
-                        cid = (cx * g + cy) * g + cz
-                        for s in range(start[cid], start[cid + 1]):
-                            j = order[s]
-                            dx = x - points[s, 0]
-                            dy = y - points[s, 1]
-                            dz = z - points[s, 2]
-                            d = dx * dx + dy * dy + dz * dz
-                            if n_found == k and (d > best_d[k - 1] or (d == best_d[k - 1] and j > best_i[k - 1])):
-                                continue
-                            p = n_found if n_found < k else k - 1
-                            while p > 0 and (best_d[p - 1] > d or (best_d[p - 1] == d and best_i[p - 1] > j)):
-                                best_d[p] = best_d[p - 1]
-                                best_i[p] = best_i[p - 1]
-                                p -= 1
-                            best_d[p] = d
-                            best_i[p] = j
-                            if n_found < k:
-                                n_found += 1
             # Distance from the query to the outside of the cells visited so far (inf: all of them).
             gap = np.inf
             for a in range(3):
@@ -123,6 +163,13 @@ def _query(points: np.ndarray, order: np.ndarray, start: np.ndarray, lo: np.ndar
             if gap == np.inf or (n_found == k and best_d[k - 1] < gap * gap):
                 break
             r += 1
+            for cx in range(max(c[0] - r, 0), min(c[0] + r, g - 1) + 1):
+                for cy in range(max(c[1] - r, 0), min(c[1] + r, g - 1) + 1):
+                    for cz in range(max(c[2] - r, 0), min(c[2] + r, g - 1) + 1):
+                        if max(abs(cx - c[0]), abs(cy - c[1]), abs(cz - c[2])) != r:
+                            continue                        # visited in an earlier ring
+                        n_found = _scan_cell(points, order, start, (cx * g + cy) * g + cz, x, y, z, k, best_d,
+                                             best_i, n_found)
         tie = False
         row = rows[i]
         for m in range(k):
