@@ -12,7 +12,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .jit import compiled
-from .parallel import WORKERS, run_parts
 
 MAX_POLYGON = 6
 """A plane cuts a cube in a convex polygon of at most 6 vertices."""
@@ -176,22 +175,8 @@ def cube_polygons(normal: np.ndarray, offset: np.ndarray, size: np.ndarray | flo
     size = np.ascontiguousarray(np.broadcast_to(np.asarray(size, dtype=np.float64), offset.shape))
     normal = np.ascontiguousarray(normal, dtype=np.float64)
     u, v = plane_basis(normal)
-    offset = np.ascontiguousarray(offset, dtype=np.float64)
-    m = len(offset)
-    verts = np.empty((m, MAX_POLYGON, 3))
-    counts = np.zeros(m, np.int64)
-
-    def part(first: int, last: int) -> None:
-        _cube_polygons(normal, offset, size, u, v, _CORNERS, _EDGES, _EDGE_START, _EDGE_DIR, first, last, verts,
-                       counts)
-
-    run_parts(part, m, WORKERS if m >= PARALLEL_PLANES else 1)
-    return verts, counts
-
-
-PARALLEL_PLANES = 2048
-"""From this many planes :func:`cube_polygons` shares them between the cores (below, a thread's
-start costs more than it saves)."""
+    return _cube_polygons(normal, np.ascontiguousarray(offset, dtype=np.float64), size, u, v, _CORNERS, _EDGES,
+                          _EDGE_START, _EDGE_DIR, MAX_POLYGON)
 
 
 def polygon_distance(points: np.ndarray, normal: np.ndarray, offset: np.ndarray,
@@ -349,18 +334,19 @@ def up_rotations(up: str = "y", count: int = ROTATIONS) -> np.ndarray:
 
 
 @compiled
-def _cube_polygons(normal, offset, size, u, v, corners, edges, edge_start, edge_dir, first, last, verts, counts):
-    """:func:`cube_polygons` compiled, one plane at a time, planes ``first:last`` written into
-    ``verts`` and ``counts``: the corners on the plane and the edges it crosses (tolerance 1e-12 of
-    the cube's side), ordered by their angle about their mean in the plane's (u, v) frame (a stable
-    sort: ties in candidate order, corners before edges)."""
-    max_polygon = verts.shape[1]
+def _cube_polygons(normal, offset, size, u, v, corners, edges, edge_start, edge_dir, max_polygon):
+    """:func:`cube_polygons` compiled, one plane at a time: the corners on the plane and the edges
+    it crosses (tolerance 1e-12 of the cube's side), ordered by their angle about their mean in the
+    plane's (u, v) frame (a stable sort: ties in candidate order, corners before edges)."""
+    m = len(offset)
+    verts = np.empty((m, max_polygon, 3))
+    counts = np.zeros(m, np.int64)
     cand = np.empty((20, 3))
     valid = np.empty(20, np.bool_)
     f = np.empty(8)
     idx = np.empty(20, np.int64)
     ang = np.empty(20)
-    for i in range(first, last):
+    for i in range(m):
         s = size[i]
         tol = 1e-12 * s
         for c in range(8):
@@ -409,3 +395,4 @@ def _cube_polygons(normal, offset, size, u, v, corners, edges, edge_start, edge_
         counts[i] = kept
         for r in range(max_polygon):
             verts[i, r] = cand[idx[min(r, kept - 1)]]
+    return verts, counts

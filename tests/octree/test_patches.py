@@ -1,7 +1,7 @@
 import numpy as np
 import trimesh
 
-from model.octree import build_octree, geometry
+from model.octree import build_octree
 from model.octree.geometry import cube_polygons
 from model.octree.metrics import chamfer_distance, hausdorff_distance, sample_patches
 from model.octree.patches import leaf_patches, patches_to_mesh
@@ -30,20 +30,6 @@ def test_cube_polygons_lie_in_their_cube_on_their_plane_and_turn_about_n():
     # Six vertices for a plane through the centre perpendicular to a diagonal.
     d = np.full((1, 3), 1 / np.sqrt(3))
     assert cube_polygons(d, np.zeros(1), 2.0)[1][0] == 6
-
-
-def test_cube_polygons_shared_between_the_cores_are_the_polygons_of_one(monkeypatch):
-    """From ``PARALLEL_PLANES`` planes the work is split between threads: each plane's polygon is
-    the one a single pass gives, bit for bit, wherever the parts meet."""
-    rng = np.random.default_rng(1)
-    n = rng.normal(size=(5001, 3))
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    off, size = rng.uniform(-1.7, 1.7, 5001), rng.uniform(0.5, 2.0, 5001)
-    verts, cnt = cube_polygons(n, off, size)
-    monkeypatch.setattr(geometry, "PARALLEL_PLANES", 10**9)
-    one_verts, one_cnt = cube_polygons(n, off, size)
-    assert np.array_equal(cnt, one_cnt) and (cnt > 0).sum() > 2000
-    assert np.array_equal(verts[cnt > 0].view(np.uint64), one_verts[cnt > 0].view(np.uint64))
 
 
 def test_patch_mesh_is_in_input_coordinates_inside_cubes_and_faces_along_n():
