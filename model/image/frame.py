@@ -111,8 +111,11 @@ def prepare_image(rgba: np.ndarray, spec: ImageSpec, keep_background: bool = Fal
         canvas = np.pad(rgb, pads, mode="edge")
     else:
         canvas = np.empty((full, full, 3), np.uint8)
-        canvas[:] = np.asarray(spec.background, np.uint8)
-        canvas[pads[0][0]:full - pads[0][1], pads[1][0]:full - pads[1][1]] = rgb
+        (pt, pb), (pl, pr) = pads[0], pads[1]
+        colour = np.asarray(spec.background, np.uint8)
+        canvas[:pt], canvas[full - pb:] = colour, colour          # only the margins are filled
+        canvas[pt:full - pb, :pl], canvas[pt:full - pb, full - pr:] = colour, colour
+        canvas[pt:full - pb, pl:full - pr] = rgb
     img = Image.fromarray(np.ascontiguousarray(canvas), "RGB")
     img = img.resize((spec.size, spec.size), Image.Resampling.BOX if full >= spec.size else Image.Resampling.BILINEAR)
     x = np.asarray(img, np.float32) / 255.0

@@ -143,7 +143,7 @@ def clean_mask(mask: np.ndarray, spec: MaskSpec, area: int | None = None) -> np.
     # the kept components grown by the 2-pixel reach, on the box grown by as much: nothing else survives
     kept_label = np.zeros(n + 1, bool)
     kept_label[keep] = True
-    near = ndimage.binary_dilation(np.pad(kept_label[labels], 2), iterations=2)   # rows from top - 2
+    near = cross_dilation(np.pad(kept_label[labels], 2), 2)                      # rows from top - 2
     y0, y1 = max(0, top - 2), min(mask.shape[0], bottom + 2)
     x0, x1 = max(0, left - 2), min(mask.shape[1], right + 2)
     out = np.zeros(mask.shape, np.float32)
@@ -152,7 +152,29 @@ def clean_mask(mask: np.ndarray, spec: MaskSpec, area: int | None = None) -> np.
     return out
 
 
-def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float) -> np.ndarray:
+def cross_dilation(mask: np.ndarray, times: int) -> np.ndarray:
+    """A boolean mask dilated ``times`` times by the 4-neighbour cross (``ndimage.binary_dilation``
+    with its default structure, ``iterations=times``, nothing beyond the border), by shifted ORs."""
+    out = mask.copy()
+    for _ in range(times):
+        grown = out.copy()
+        grown[1:] |= out[:-1]
+        grown[:-1] |= out[1:]
+        grown[:, 1:] |= out[:, :-1]
+        grown[:, :-1] |= out[:, 1:]
+        out = grown
+    return out
+
+
+def guide_of(rgb: np.ndarray) -> np.ndarray:
+    """The guided filter's guide of an (H, W, 3) uint8 image: its grey image (luma, ITU-R 601, as
+    Pillow rounds it per pixel, so a crop's guide is the guide's crop) in [0, 1], float32 (H, W)."""
+    grey = Image.fromarray(np.ascontiguousarray(rgb[..., :3]), "RGB").convert("L")
+    return np.asarray(grey, np.float32) / np.float32(255)
+
+
+def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float,
+                  guide: np.ndarray | None = None) -> np.ndarray:
     """``p`` (h, w) in [0, 1], an object probability on a grid over the whole of ``rgb`` (H, W, 3)
     uint8 (the foreground network's, or the image's own pixels), brought to the image's resolution
     with its grey image (luma) as the guide: He, Sun and Tang's guided filter (ECCV 2010), in the
@@ -164,10 +186,9 @@ def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float) -> 
     (bilinear) give ``a I + b`` at every pixel of the image.  Where the image has an edge the mask
     follows it (the edges and thin parts a low-resolution mask blurs); where the image is flat the
     mask is smoothed.  The cost is the grid's, plus a few operations per image pixel.  Float32
-    (H, W), clipped to [0, 1]."""
+    (H, W), clipped to [0, 1].  ``guide``: :func:`guide_of` ``rgb`` when the caller has it."""
     p = np.asarray(p, np.float32)
-    grey = Image.fromarray(np.ascontiguousarray(rgb[..., :3]), "RGB").convert("L")      # luma, ITU-R 601
-    guide = np.asarray(grey, np.float32) / np.float32(255)
+    guide = guide_of(rgb) if guide is None else guide
     (h, w), (H, W) = p.shape, guide.shape
     g = guide if (h, w) == (H, W) else resize_mask(guide, h, w)
     size = 2 * max(1, round(radius)) + 1
@@ -183,14 +204,14 @@ def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float) -> 
     return np.clip(a_mean * guide + b_mean, 0.0, 1.0)
 
 
-def to_image(rgb: np.ndarray, p: np.ndarray, spec: MaskSpec) -> np.ndarray:
+def to_image(rgb: np.ndarray, p: np.ndarray, spec: MaskSpec, guide: np.ndarray | None = None) -> np.ndarray:
     """An object probability ``p`` on a grid over the whole of ``rgb`` (the network's ``spec.size``
     square, or the image's own pixels) at the image's (H, W), float32 in [0, 1]: through
-    ``spec``'s guided filter (its radius given in the network's pixels, scaled to the grid), else
-    resized (bilinear)."""
+    ``spec``'s guided filter (its radius given in the network's pixels, scaled to the grid;
+    ``guide``: :func:`guide_of` ``rgb`` when the caller has it), else resized (bilinear)."""
     p = np.asarray(p, np.float32)
     if spec.guide > 0:
-        return guided_filter(rgb, p, spec.guide * max(p.shape) / spec.size, spec.guide_eps)
+        return guided_filter(rgb, p, spec.guide * max(p.shape) / spec.size, spec.guide_eps, guide)
     return np.clip(p if p.shape == rgb.shape[:2] else resize_mask(p, *rgb.shape[:2]), 0.0, 1.0)
 
 
@@ -225,16 +246,18 @@ def object_mask(rgb: np.ndarray, segment, spec: MaskSpec, refine=None) -> np.nda
     given and ``spec.crop_size`` is set, then segments the object's square once more
     (:func:`refined_mask`)."""
     h, w = rgb.shape[:2]
+    guide = guide_of(rgb) if spec.guide > 0 else None          # one grey image for both looks
 
-    def look(image: np.ndarray) -> np.ndarray:
-        return to_image(image, segment(image), spec)
+    def look(image: np.ndarray, guide: np.ndarray | None) -> np.ndarray:
+        return to_image(image, segment(image), spec, guide)
 
-    mask = clean_mask(look(rgb), spec)
+    mask = clean_mask(look(rgb, guide), spec)
     square = refine_square(mask_bounds(mask > 0.5), h, w, spec)
     if square is not None and min(square[1] - square[0], square[3] - square[2]) >= spec.refine_side:
         y0, y1, x0, x1 = square
         try:
-            part = clean_mask(look(np.ascontiguousarray(rgb[y0:y1, x0:x1])), spec, h * w)
+            part = clean_mask(look(np.ascontiguousarray(rgb[y0:y1, x0:x1]),
+                                   None if guide is None else guide[y0:y1, x0:x1]), spec, h * w)
             mask = np.zeros_like(mask)
             mask[y0:y1, x0:x1] = part
         except NoObjectError:            # the closer look lost the object: keep the first look's mask

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from PIL import Image
+from scipy import ndimage
 
 from model.image.decode import ImageError
 from model.image.frame import MIN_OBJECT_SIDE, ImageSpec, frame_object
@@ -13,6 +14,7 @@ from model.image.mask import (
     MaskSpec,
     NoObjectError,
     clean_mask,
+    cross_dilation,
     mask_bounds,
     mask_input,
     mask_output,
@@ -245,7 +247,6 @@ def test_clean_mask_is_its_whole_image_definition():
     component is kept, else the mask where a pixel is within 2 pixels (4-connected steps) of a kept
     component and 0 elsewhere; NoObjectError when too little is kept; ``area`` sets what the kept
     share is of."""
-    from scipy import ndimage
 
     rng = np.random.default_rng(0)
     spec = MaskSpec()
@@ -282,7 +283,6 @@ def test_the_guided_filter_follows_the_images_edges():
     """A mask blurred as a low-resolution network blurs it (a thin bar bloated, a square's corners
     rounded) comes back close to the objects the image shows; flat and linear inputs stay as they
     are."""
-    from scipy import ndimage
 
     from model.image.mask import guided_filter
 
@@ -306,7 +306,6 @@ def test_the_guided_filter_follows_the_images_edges():
 
 def test_object_mask_applies_the_guided_filter_to_each_look():
     """A network that sees the objects blurred: with the spec's guide the mask is far closer to them."""
-    from scipy import ndimage
 
     rgb, truth = photo(120, 200, ((30, 120, 90, 170), (40, 20, 44, 100)))     # a block and a thin bar
 
@@ -352,7 +351,6 @@ def test_the_guided_filter_brings_a_coarse_grid_to_the_image_along_its_edges():
     """A mask on a coarse grid over a large image (as the network's 128² covers a photo): the guided
     filter's output at the image's resolution follows the objects' edges, far closer to them than
     the grid resized; and a grid the image's own size is the plain guided filter."""
-    from scipy import ndimage
 
     from model.image.mask import guided_filter
 
@@ -383,3 +381,13 @@ def test_the_guided_filter_brings_a_coarse_grid_to_the_image_along_its_edges():
     a = (box(g * p) - box(g) * box(p)) / (box(g * g) - box(g) ** 2 + 1e-4)
     want = np.clip(box(a) * g + box(box(p) - a * box(g)), 0, 1)
     assert np.abs(guided_filter(small, p, 2, 1e-4) - want).max() < 1e-4
+
+
+def test_cross_dilation_is_scipys_binary_dilation():
+    """Shifted ORs give ``ndimage.binary_dilation`` (4-neighbour cross, iterated, nothing beyond the
+    border) on random masks, pixels on the border included."""
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        mask = rng.random(tuple(int(v) for v in rng.integers(1, 40, 2))) < rng.uniform(0.01, 0.3)
+        for times in (1, 2, 3):
+            assert np.array_equal(cross_dilation(mask, times), ndimage.binary_dilation(mask, iterations=times))
