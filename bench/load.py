@@ -39,15 +39,17 @@ def _free_port() -> int:
 
 
 @contextlib.contextmanager
-def serve(models_dir: str | None = None, env: dict[str, str] | None = None) -> Iterator[tuple[str, int]]:
+def serve(models_dir: str | None = None, env: dict[str, str] | None = None,
+          cwd: str | None = None) -> Iterator[tuple[str, int]]:
     """``python -m service`` on a free port of 127.0.0.1 (the bundled models unless ``models_dir``;
-    ``env``: AOCNN_* settings), ready (/readyz); yields its base URL and process id, and stops it."""
+    ``env``: AOCNN_* settings; ``cwd``: run from another checkout, its own code and models), ready
+    (/readyz); yields its base URL and process id, and stops it."""
     port = _free_port()
     env = {**os.environ, **(env or {}), "AOCNN_PORT": str(port)}
     if models_dir:
         env["AOCNN_MODELS_DIR"] = models_dir
     server = subprocess.Popen([sys.executable, "-m", "service"], env=env, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.PIPE)
+                              stderr=subprocess.PIPE, cwd=cwd)
     base = f"http://127.0.0.1:{port}"
     try:
         for _ in range(240):

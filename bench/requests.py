@@ -2,19 +2,23 @@
 goes (``Server-Timing``), for the inputs of the request-speed targets.
 
     python -m bench.requests [--requests 12] [--drop 2] [--cases completion photo render]
-                             [--query surface=patches] [--json PATH]
+                             [--query surface=patches] [--against CHECKOUT] [--json PATH]
 
 Starts ``python -m service`` with the bundled models (:func:`bench.load.serve`), sends each case's
 request ``--requests`` times in a row, drops the first ``--drop`` (warm-up), and prints the median
 and the worst latency measured by the client, each stage's median, and the share of the median
 request spent outside the networks (completion: encoder + decoder; photos: mask + encoder +
-decoder).  Cases: ``completion``, the 20,000-point scan examples/car_partial_scan.ply at the
+decoder).  ``--against``: a checkout of another version (a git worktree) serves beside this one,
+the requests alternate between the two, and the ratios this / other are printed: both meet the
+machine in the same state (a 2-core virtual machine drifts by 20% from one minute to the next).
+Cases: ``completion``, the 20,000-point scan examples/car_partial_scan.ply at the
 model's depth 7; ``photo``, a 640x480 JPEG photo of a generated chair on a procedural scene
 (background removal on); ``render``, examples/chair.png (RGBA).
 """
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import statistics
@@ -59,46 +63,73 @@ def case_upload(case: str) -> tuple[str, str, str, bytes]:
     return "image-to-shape", "image", "chair.png", Path("examples/chair.png").read_bytes()
 
 
-def measure(base: str, case: str, requests: int, drop: int, query: str) -> dict:
+def measure(bases: dict[str, str], case: str, requests: int, drop: int, query: str) -> dict[str, dict]:
+    """Per service (name -> base URL) the figures of ``requests`` requests of ``case``, the first
+    ``drop`` left out; with two services the requests alternate between them (the order swapped
+    every round), so that both meet the machine in the same state."""
     endpoint, field, name, data = case_upload(case)
-    url = f"{base}/v1/{endpoint}" + (f"?{query}" if query else "")
-    latency, stages = [], {}
+    latency = {k: [] for k in bases}
+    stages: dict[str, dict[str, list[float]]] = {k: {} for k in bases}
     with httpx.Client(timeout=120) as client:
-        for _ in range(requests):
-            t = time.perf_counter()
-            r = client.post(url, files={field: (name, data)})
-            dt = time.perf_counter() - t
-            if r.status_code != 200:
-                raise RuntimeError(f"{case}: {r.status_code} {r.text[:200]}")
-            latency.append(dt)
-            for stage, sec in _stages(r.headers.get("server-timing", "")).items():
-                stages.setdefault(stage, []).append(sec)
-    kept = latency[drop:]
-    median = {k: 1e3 * statistics.median(v[drop:]) for k, v in stages.items()}
-    p50 = 1e3 * statistics.median(kept)
+        for i in range(requests):
+            for side in (list(bases) if i % 2 == 0 else list(bases)[::-1]):
+                url = f"{bases[side]}/v1/{endpoint}" + (f"?{query}" if query else "")
+                t = time.perf_counter()
+                r = client.post(url, files={field: (name, data)})
+                dt = time.perf_counter() - t
+                if r.status_code != 200:
+                    raise RuntimeError(f"{case} ({side}): {r.status_code} {r.text[:200]}")
+                latency[side].append(dt)
+                for stage, sec in _stages(r.headers.get("server-timing", "")).items():
+                    stages[side].setdefault(stage, []).append(sec)
+    return {side: _row(case, latency[side][drop:], {k: v[drop:] for k, v in stages[side].items()}) for side in bases}
+
+
+def _row(case: str, latency: list[float], stages: dict[str, list[float]]) -> dict:
+    median = {k: 1e3 * statistics.median(v) for k, v in stages.items()}
+    p50 = 1e3 * statistics.median(latency)
     networks = sum(median.get(s, 0.0) for s in NETWORKS[case])
-    return {"case": case, "requests": len(kept), "p50_ms": p50, "worst_ms": 1e3 * max(kept),
+    return {"case": case, "requests": len(latency), "p50_ms": p50, "worst_ms": 1e3 * max(latency),
             "outside_networks": 1 - networks / p50, "stage_ms": median}
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = command_parser("python -m bench.requests", __doc__, ["python -m bench.requests --cases completion photo"])
+    ap = command_parser("python -m bench.requests", __doc__, ["python -m bench.requests --cases completion photo",
+                                                              "python -m bench.requests --against ../aocnn-98dd16a"])
     ap.add_argument("--requests", type=int, default=12, help="requests per case (default 12)")
     ap.add_argument("--drop", type=int, default=2, help="first requests left out (default 2)")
-    ap.add_argument("--cases", nargs="+", choices=sorted(NETWORKS), default=["completion", "photo", "render"])
+    ap.add_argument("--cases", nargs="+", choices=sorted(NETWORKS), default=["completion", "photo", "render"],
+                    help="the requests measured (default: completion photo render)")
     ap.add_argument("--query", default="", help="query parameters of every request (default: none)")
+    ap.add_argument("--against", default=None, help="a checkout of another version (e.g. a git worktree): its "
+                    "service runs beside this one, requests alternate, and the ratios are printed")
     ap.add_argument("--json", default=None, help="also write the figures here")
     args = ap.parse_args(argv)
-    with serve() as (base, _):
-        rows = [measure(base, c, args.requests, args.drop, args.query) for c in args.cases]
+    if args.against and not (Path(args.against) / "service" / "__main__.py").is_file():
+        print(f"error: --against {args.against} is not a checkout of this project (no service/__main__.py)",
+              file=sys.stderr)
+        return 2
+    with contextlib.ExitStack() as stack:
+        bases = {"this": stack.enter_context(serve())[0]}
+        if args.against:
+            bases["other"] = stack.enter_context(serve(cwd=args.against))[0]
+        rows = [measure(bases, c, args.requests, args.drop, args.query) for c in args.cases]
     print(f"{args.requests - args.drop} requests a case (first {args.drop} dropped), one at a time"
-          + (f", ?{args.query}" if args.query else ""))
-    for r in rows:
-        target = TARGETS.get(r["case"])
-        goal = f"  (targets: p50 <= {target[0]:.0f} ms, outside <= {target[1]:.0%})" if target else ""
-        print(f"{r['case']:>10}: p50 {r['p50_ms']:6.1f} ms, worst {r['worst_ms']:6.1f} ms, outside the networks "
-              f"{r['outside_networks']:.0%}{goal}")
-        print("            median ms per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in r["stage_ms"].items()))
+          + (f", ?{args.query}" if args.query else "")
+          + (f", alternating with {args.against}" if args.against else ""))
+    for both in rows:
+        for side, r in both.items():
+            target = TARGETS.get(r["case"]) if side == "this" else None
+            goal = f"  (targets: p50 <= {target[0]:.0f} ms, outside <= {target[1]:.0%})" if target else ""
+            label = r["case"] if side == "this" else "(other)"
+            print(f"{label:>10}: p50 {r['p50_ms']:6.1f} ms, worst {r['worst_ms']:6.1f} ms, outside the networks "
+                  f"{r['outside_networks']:.0%}{goal}")
+            print("            median ms per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in r["stage_ms"].items()))
+        if "other" in both:
+            this, other = both["this"], both["other"]
+            ratios = {k: v / other["stage_ms"][k] for k, v in this["stage_ms"].items() if other["stage_ms"].get(k)}
+            print(f"            this / other: p50 {this['p50_ms'] / other['p50_ms']:.2f}x, worst "
+                  f"{this['worst_ms'] / other['worst_ms']:.2f}x; " + ", ".join(f"{k} {v:.2f}x" for k, v in ratios.items()))
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0

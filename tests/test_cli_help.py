@@ -56,6 +56,7 @@ def _mains():
     from bench.octree_scaling import main as bench_scaling_main
     from bench.octree_versions import main as bench_versions_main
     from bench.onnx_decode import main as bench_onnx_main
+    from bench.requests import main as bench_requests_main
     from bench.symmetry import main as bench_symmetry_main
     from bench.train_step import main as bench_step_main
     from export.__main__ import main as export_main
@@ -82,7 +83,8 @@ def _mains():
             "research.release": release_main, "research.calibrate": calibrate_main, "export": export_main,
             "export.quantize": quantize_main, "service": service_main, "bench.onnx_decode": bench_onnx_main,
             "bench.load": bench_load_main, "bench.octree_scaling": bench_scaling_main,
-            "bench.train_step": bench_step_main, "research.degrade": degrade_main}
+            "bench.train_step": bench_step_main, "research.degrade": degrade_main,
+            "bench.requests": bench_requests_main}
 
 
 @pytest.mark.parametrize("name", sorted(_mains()))
