@@ -157,12 +157,37 @@ def _rayleigh(c: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def plane_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors (u, v) with ``u x v = n`` spanning each plane."""
-    axis = np.zeros_like(normal)
-    axis[np.arange(len(normal)), np.argmin(np.abs(normal), axis=1)] = 1.0
-    u = np.cross(normal, axis)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    return u, np.cross(normal, u)
+    """Two unit vectors (u, v) with ``u x v = n`` spanning each plane (normals (M, 3)): ``u`` is
+    ``n`` crossed with the axis along its smallest component (the first of equals), normalised,
+    and ``v = n x u``, computed row by row (compiled) as NumPy's ``cross`` and ``linalg.norm``
+    compute them (a zero normal gives NaN vectors)."""
+    normal = np.ascontiguousarray(normal, dtype=np.float64)
+    u, v = np.empty_like(normal), np.empty_like(normal)
+    _plane_basis(normal, u, v)
+    return u, v
+
+
+@compiled
+def _plane_basis(normal: np.ndarray, u: np.ndarray, v: np.ndarray) -> None:
+    """:func:`plane_basis` into ``u`` and ``v``."""
+    axis = np.empty(3)
+    for i in range(len(normal)):
+        n0, n1, n2 = normal[i, 0], normal[i, 1], normal[i, 2]
+        k = 0
+        if abs(n1) < abs(n0):
+            k = 1
+        if abs(n2) < abs(normal[i, k]):
+            k = 2
+        axis[:] = 0.0
+        axis[k] = 1.0
+        a0, a1, a2 = n1 * axis[2] - n2 * axis[1], n2 * axis[0] - n0 * axis[2], n0 * axis[1] - n1 * axis[0]
+        norm = np.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
+        if norm == 0.0:                              # a zero normal: NaN, as NumPy's 0 / 0 gives
+            a0 = a1 = a2 = np.nan
+        else:
+            a0, a1, a2 = a0 / norm, a1 / norm, a2 / norm
+        u[i, 0], u[i, 1], u[i, 2] = a0, a1, a2
+        v[i, 0], v[i, 1], v[i, 2] = n1 * a2 - n2 * a1, n2 * a0 - n0 * a2, n0 * a1 - n1 * a0
 
 
 def cube_polygons(normal: np.ndarray, offset: np.ndarray, size: np.ndarray | float
