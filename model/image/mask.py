@@ -7,10 +7,13 @@ passed in as callables."""
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from functools import lru_cache
 
 import numpy as np
 from PIL import Image
 from scipy import ndimage
+
+from model.octree.jit import compiled, inlined
 
 from .decode import ImageError
 
@@ -199,9 +202,121 @@ def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float,
     mean_i, mean_p = box(g), box(p)
     a = (box(g * p) - mean_i * mean_p) / (box(g * g) - mean_i * mean_i + np.float32(eps))
     a_mean, b_mean = box(a), box(mean_p - a * mean_i)
+    if (h, w) != (H, W) and not (H <= h and W <= w):       # resized bilinearly: in one pass, A and B never made
+        return bilinear_blend(a_mean, b_mean, guide)
     if (h, w) != (H, W):
         a_mean, b_mean = resize_mask(a_mean, H, W), resize_mask(b_mean, H, W)
     return np.clip(a_mean * guide + b_mean, 0.0, 1.0)
+
+
+def bilinear_blend(a: np.ndarray, b: np.ndarray, guide: np.ndarray) -> np.ndarray:
+    """``clip(A guide + B, 0, 1)``, float32 (H, W), where ``A`` and ``B`` are ``a`` and ``b`` (h, w)
+    float32 resized to the guide's (H, W) by :func:`resize_mask`'s bilinear resizing (Pillow's
+    two-pass resampling: double sums, float32 between the passes, the reduced direction first:
+    the same bits), computed without making ``A`` and ``B`` (compiled; a quarter of the time)."""
+    (h, w), (H, W) = a.shape, guide.shape
+    across, down = _bilinear_taps(w, W), _bilinear_taps(h, H)
+    out = np.empty((H, W), np.float32)
+    _blend(np.ascontiguousarray(a, np.float32), np.ascontiguousarray(b, np.float32),
+           np.ascontiguousarray(guide, np.float32), *across, *down, out)
+    return out
+
+
+@lru_cache(maxsize=64)
+def _bilinear_taps(size: int, out: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pillow's bilinear taps from ``size`` pixels to ``out`` (its ``precompute_coeffs``): per
+    output pixel the first input pixel and the count (out, 2), and the normalised weights (out, k),
+    in double."""
+    scale = size / out
+    filterscale = max(scale, 1.0)
+    support = filterscale                              # the triangle's support, 1, widened when reducing
+    bounds = np.zeros((out, 2), np.int64)
+    weights = np.zeros((out, int(np.ceil(support)) * 2 + 1))
+    for xx in range(out):
+        centre = (xx + 0.5) * scale
+        first = max(int(centre - support + 0.5), 0)
+        count = min(int(centre + support + 0.5), size) - first
+        total = 0.0
+        for x in range(count):
+            t = abs((x + first - centre + 0.5) * (1.0 / filterscale))
+            weights[xx, x] = 1.0 - t if t < 1.0 else 0.0
+            total += weights[xx, x]
+        if total != 0.0:
+            weights[xx, :count] /= total
+        bounds[xx] = first, count
+    bounds.setflags(write=False)
+    weights.setflags(write=False)
+    return bounds, weights
+
+
+@compiled
+def _blend(a, b, guide, across_bounds, across, down_bounds, down, out) -> None:
+    """:func:`bilinear_blend` into ``out``, in Pillow's order of passes (down first where the rows
+    are reduced, else across first), each tap sum in double from 0 in tap order and stored as
+    float32, then blended row by row."""
+    h, w = a.shape
+    H, W = guide.shape
+    sa = np.empty(max(w, W))
+    sb = np.empty(max(w, W))
+    if H < h:                                          # down first: (H, w) rows, then across and blend
+        rows_a = np.empty((H, w), np.float32)
+        rows_b = np.empty((H, w), np.float32)
+        for yy in range(H):
+            _down_row(a, b, down_bounds[yy, 0], down_bounds[yy, 1], down[yy], sa, sb)
+            for x in range(w):
+                rows_a[yy, x] = sa[x]
+                rows_b[yy, x] = sb[x]
+        for yy in range(H):
+            for xx in range(W):
+                va, vb = _across(rows_a, rows_b, yy, across_bounds[xx, 0], across_bounds[xx, 1], across[xx])
+                out[yy, xx] = _blended(np.float32(va), np.float32(vb), guide[yy, xx])
+        return
+    rows_a = np.empty((h, W), np.float32)              # across first: (h, W) rows, then down and blend
+    rows_b = np.empty((h, W), np.float32)
+    for y in range(h):
+        for xx in range(W):
+            rows_a[y, xx], rows_b[y, xx] = _across(a, b, y, across_bounds[xx, 0], across_bounds[xx, 1], across[xx])
+    for yy in range(H):
+        _down_row(rows_a, rows_b, down_bounds[yy, 0], down_bounds[yy, 1], down[yy], sa, sb)
+        for xx in range(W):
+            out[yy, xx] = _blended(np.float32(sa[xx]), np.float32(sb[xx]), guide[yy, xx])
+
+
+@inlined
+def _across(a, b, y: int, first: int, count: int, taps) -> tuple[float, float]:
+    """The tap sums (double, from 0, in tap order) of columns ``first .. first + count`` of row
+    ``y`` of ``a`` and of ``b``."""
+    va = 0.0
+    vb = 0.0
+    for x in range(count):
+        va += np.float64(a[y, first + x]) * taps[x]
+        vb += np.float64(b[y, first + x]) * taps[x]
+    return va, vb
+
+
+@inlined
+def _down_row(a, b, first: int, count: int, taps, sa, sb) -> None:
+    """The tap sums (double, from 0, in tap order) of rows ``first .. first + count`` of ``a`` and
+    ``b`` into ``sa`` and ``sb``, column by column."""
+    n = a.shape[1]
+    sa[:n] = 0.0
+    sb[:n] = 0.0
+    for y in range(count):
+        k = taps[y]
+        for x in range(n):
+            sa[x] += np.float64(a[first + y, x]) * k
+            sb[x] += np.float64(b[first + y, x]) * k
+
+
+@inlined
+def _blended(a, b, g):
+    """``clip(a g + b, 0, 1)`` in float32 as NumPy computes it (NaN stays NaN)."""
+    v = np.float32(a * g) + b
+    if v < 0:
+        return np.float32(0.0)
+    if v > 1:
+        return np.float32(1.0)
+    return v
 
 
 def to_image(rgb: np.ndarray, p: np.ndarray, spec: MaskSpec, guide: np.ndarray | None = None) -> np.ndarray:

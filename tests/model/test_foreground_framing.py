@@ -13,6 +13,7 @@ from model.image.frame import MIN_OBJECT_SIDE, ImageSpec, frame_object
 from model.image.mask import (
     MaskSpec,
     NoObjectError,
+    bilinear_blend,
     clean_mask,
     cross_dilation,
     mask_bounds,
@@ -391,3 +392,19 @@ def test_cross_dilation_is_scipys_binary_dilation():
         mask = rng.random(tuple(int(v) for v in rng.integers(1, 40, 2))) < rng.uniform(0.01, 0.3)
         for times in (1, 2, 3):
             assert np.array_equal(cross_dilation(mask, times), ndimage.binary_dilation(mask, iterations=times))
+
+
+def test_the_blend_of_the_guided_filter_is_pillows_bilinear_resizing_bit_for_bit():
+    """``bilinear_blend`` against ``clip(resize(a) guide + resize(b), 0, 1)`` with Pillow's resizing
+    (``resize_mask``), bit for bit: enlarged both ways, and enlarged one way while reduced the
+    other (Pillow widens the triangle where it reduces)."""
+    rng = np.random.default_rng(4)
+    for _ in range(80):
+        h, w = (int(v) for v in rng.integers(3, 130, 2))
+        H = int(rng.integers(h, 600)) if rng.random() < 0.8 else int(rng.integers(1, h + 1))
+        W = int(rng.integers(w, 600)) if H <= h or rng.random() < 0.8 else int(rng.integers(1, w + 1))
+        a, b = rng.normal(0, 3, (h, w)).astype(np.float32), rng.normal(0.5, 1, (h, w)).astype(np.float32)
+        guide = rng.random((H, W)).astype(np.float32)
+        want = np.clip(resize_mask(a, H, W) * guide + resize_mask(b, H, W), 0.0, 1.0)
+        got = bilinear_blend(a, b, guide)
+        assert got.dtype == np.float32 and np.array_equal(got.view(np.uint32), want.view(np.uint32)), (h, w, H, W)

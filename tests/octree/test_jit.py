@@ -58,6 +58,8 @@ from model.octree import build_octree, fuse, geometry, knn, orient, probe_search
 from model.octree.pointcloud import estimate_normals
 from model.octree.symmetry import find_mirror
 from model.surface import clusters, watertight_mesh
+from model.image import mask
+mask.bilinear_blend(np.ones((16, 16), np.float32), np.ones((16, 16), np.float32), np.ones((40, 30), np.float32))
 p = np.random.default_rng(0).random((3000, 3))
 estimate_normals(p); find_mirror(p); t = build_octree((p, None), 6)
 fuse.keep_scan(t, build_octree((p[:1500], None), 6))
@@ -74,7 +76,7 @@ def contracted(a, b, c):      # the detector's own check: asked to, the compiler
 
 x = np.ones(8)
 contracted(x, x, x)
-kernels = [f for m in (knn, probe_search, orient, geometry, clusters, fuse) for f in vars(m).values()
+kernels = [f for m in (knn, probe_search, orient, geometry, clusters, fuse, mask) for f in vars(m).values()
            if hasattr(f, "inspect_asm")]
 for f in kernels + [contracted]:
     for sig in f.signatures:
@@ -97,7 +99,7 @@ def test_no_kernel_fuses_a_multiply_and_an_add(tmp_path):
         name, _, asm = part.partition("\n")
         listings[name] = listings.get(name, "") + asm
     assert {"_query", "_within", "_grid_probes", "_edge_probes", "covariance_rows", "_cube_polygons",
-            "_nearest_on_fans", "_walk"} <= set(listings)
+            "_nearest_on_fans", "_walk", "_blend"} <= set(listings)
     fused = {name: [op for op in FUSED if op in asm] for name, asm in listings.items()}
     assert not any(ops for name, ops in fused.items() if name != "contracted"), fused
     cpu = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""

@@ -431,14 +431,16 @@ def test_surface_and_face_budget_parameters(client):
 
 def test_the_warm_up_compiles_the_normal_estimation_before_the_first_scan(models_dir):
     """A fresh process: after the warm-up, the compiled kernels of normal estimation, the symmetry
-    search, the octree build, the scan fusion and the closed surface have their machine code (a first completion
-    or closed-surface request does not spend seconds compiling them)."""
+    search, the octree build, the scan fusion and the closed surface have their machine code (a
+    first completion or closed-surface request does not spend seconds compiling them; the photo
+    mask's kernel: tests/service/test_foreground.py)."""
     kernels = ("orient.covariance_rows, orient.spanning_tree, orient.propagate_signs, knn._query, knn._within, "
                "probe_search._grid_probes, probe_search._edge_probes, clusters._nearest_on_fans, flood._repair_round, "
                "flood._reached, flood._dilated, checks._fan_counts, checks._edge_faults, graph._components, graph._close_pairs, "
                "clusters._merged_faces, fuse._walk")
     code = ("import sys; from service.engine import Engine; from service.settings import Settings; "
-            "from model.octree import fuse, orient, knn, probe_search; from model.surface import checks, clusters, flood, graph; "
+            "from model.octree import fuse, orient, knn, probe_search; "
+            "from model.surface import checks, clusters, flood, graph; "
             "e = Engine(Settings(models_dir=sys.argv[1])); e.load(); "
             f"before = [len(f.signatures) for f in ({kernels})]; "
             "e.warm_up(); "

@@ -8,6 +8,10 @@ the object drawn); one test runs the real foreground graph of ``foreground_model
 from __future__ import annotations
 
 import io
+import json
+import shutil
+import subprocess
+import sys
 import time
 from typing import get_args
 
@@ -23,7 +27,7 @@ from service.metrics import Metrics, StageTimer
 from service.schemas import RemoveBackground
 
 from .conftest import make_client
-from .test_api import png
+from .test_api import REPO, png
 from .test_bad_input import _err
 
 OBJECT = (30, 40, 60)
@@ -352,3 +356,21 @@ def test_a_box_without_background_removal_is_the_crop_and_alpha_still_wins(fg_cl
     r = post(fg_client, png(rgba), box="0,0,200,160")
     assert r.status_code == 200 and r.headers["x-mask"] == "alpha" and not segment_calls
     assert np.abs(np.subtract(crop_box(r), true_box(mask))).max() <= 1
+
+
+def test_the_warm_up_runs_the_foreground_network_and_compiles_the_guided_filters_kernel(foreground_models_dir, tmp_path):
+    """A fresh process with a foreground network whose masks go through the guided filter: after
+    the warm-up the filter's compiled blend has its machine code (a first photo does not spend
+    seconds compiling it)."""
+    shutil.copytree(foreground_models_dir, tmp_path / "models")
+    meta_path = tmp_path / "models" / "image-to-shape" / "model.json"
+    meta = json.loads(meta_path.read_text())
+    meta["input"]["foreground"]["guide"] = 1.0
+    meta_path.write_text(json.dumps(meta))
+    code = ("import sys; from service.engine import Engine; from service.settings import Settings; "
+            "from model.image import mask; e = Engine(Settings(models_dir=sys.argv[1])); e.load(); "
+            "before = len(mask._blend.signatures); e.warm_up(); print(before, len(mask._blend.signatures))")
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "models")], capture_output=True, text=True,
+                         timeout=600, cwd=REPO)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "0 1", out.stdout
