@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from model.octree import Octree
+from model.octree.geometry import bounding_box
 from model.octree.patches import depth_colors
 from model.surface import DEFAULT_SURFACE, SurfaceMesh, surface_mesh
 
@@ -77,8 +78,9 @@ def _gltf(m: SurfaceMesh, colors: np.ndarray | None) -> tuple[dict, bytes]:
     for data, target in parts:
         views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(data), "target": target})
         blob += _pad4(data)
+    lo, hi = bounding_box(pos)
     accessors = [{"bufferView": 0, "componentType": 5126, "count": len(pos), "type": "VEC3",
-                  "min": pos.min(0).tolist(), "max": pos.max(0).tolist()}]
+                  "min": lo.tolist(), "max": hi.tolist()}]
     attributes = {"POSITION": 0}
     if colors is not None:
         accessors.append({"bufferView": 1, "componentType": 5121, "normalized": True, "count": len(pos), "type": "VEC4"})

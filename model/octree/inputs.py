@@ -11,6 +11,7 @@ import trimesh
 
 from ..formats import MESH_FORMATS, POINT_FORMATS, identify, is_column_header, not_taken
 from .errors import OctreeInputError
+from .geometry import bounding_box
 from .pointcloud import CUBE_FILL, PointCloud, validate
 
 MESH_EXTENSIONS = (".obj", ".off", ".stl", ".glb", ".gltf", ".ply")
@@ -235,7 +236,8 @@ def _sample_mesh(mesh, path: str, depth: int, n_points: int | None, seed: int) -
         raise OctreeInputError(f"{path}: every triangle has zero area; nothing to sample")
     total = float(area[good].sum())
     if n_points is None:
-        extent = float((v.max(0) - v.min(0)).max())
+        lo, hi = bounding_box(v)
+        extent = float((hi - lo).max())
         h = extent / CUBE_FILL / (1 << depth)
         spacing = h / SAMPLES_PER_VOXEL_EDGE
         n_points = int(np.clip(np.ceil(total / spacing ** 2), MIN_DEFAULT_POINTS, MAX_DEFAULT_POINTS))

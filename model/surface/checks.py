@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..octree.geometry import bounding_box
 from ..octree.jit import compiled
 from .graph import close_pairs, components
 
@@ -20,7 +21,8 @@ def weld(vertices: np.ndarray, faces: np.ndarray, tolerance: float = WELD) -> np
     one another (transitively) are one vertex, as a welding reader loads the mesh."""
     if not len(vertices):
         return faces
-    diag = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
+    lo, hi = bounding_box(vertices)
+    diag = float(np.linalg.norm(hi - lo))
     pairs = close_pairs(vertices, tolerance * max(diag, 1e-300))
     if not len(pairs):
         return faces

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..octree import LEAF, Octree
+from ..octree.geometry import bounding_box
 from ..octree.jit import compiled
 
 PAD = 2
@@ -89,8 +90,8 @@ class Grid:
 def rasterise(leaves: Leaves, align: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """(origin, owner): the finest cell of array cell 0 and the leaf owning every cell (-1: none)
     over the leaves' bounding box, padded and aligned as :class:`Grid` says."""
-    origin = (leaves.origin.min(0) - PAD) // align * align
-    size = -(-((leaves.origin + leaves.cells[:, None]).max(0) + PAD - origin) // align) * align
+    origin = (bounding_box(leaves.origin)[0] - PAD) // align * align
+    size = -(-(bounding_box(leaves.origin + leaves.cells[:, None])[1] + PAD - origin) // align) * align
     owner = np.full(tuple(size), -1, np.int32)
     strides = np.array([size[1] * size[2], size[2], 1])
     flat = owner.ravel()

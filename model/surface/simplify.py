@@ -11,6 +11,7 @@ import manifold3d
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..octree.geometry import bounding_box
 from .checks import is_closed, is_closed_embedded
 
 START = 1e-4
@@ -34,7 +35,8 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, max_faces: int,
                                                 tri_verts=np.asarray(faces, np.uint32)))
     if solid.status() != manifold3d.Error.NoError:
         raise ValueError(f"the mesh is not a closed 2-manifold ({solid.status()}); it cannot be simplified")
-    diag = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
+    lo, hi = bounding_box(vertices)
+    diag = float(np.linalg.norm(hi - lo))
     tolerance = START * diag
     best = (np.asarray(vertices, np.float64), np.asarray(faces, np.int64), 0.0)
     while True:
