@@ -13,7 +13,9 @@ the requests alternate between the two, and the ratios this / other are printed:
 machine in the same state (a 2-core virtual machine drifts by 20% from one minute to the next).
 Cases: ``completion``, the 20,000-point scan examples/car_partial_scan.ply at the
 model's depth 7; ``photo``, a 640x480 JPEG photo of a generated chair on a procedural scene
-(background removal on); ``render``, examples/chair.png (RGBA).
+(background removal on); ``photo-kept``, the same photo with ``remove_background=false`` (with
+``photo`` also asked for, the two are measured again alternating and their ratio printed);
+``render``, examples/chair.png (RGBA).
 """
 
 from __future__ import annotations
@@ -34,7 +36,12 @@ from bench.load import _stages, serve
 from model.cli import command_parser
 
 NETWORKS = {"completion": ("encoder", "decoder"), "photo": ("mask", "encoder", "decoder"),
-            "render": ("encoder", "decoder")}
+            "photo-kept": ("encoder", "decoder"), "render": ("encoder", "decoder")}
+CASE_QUERY = {"photo-kept": "remove_background=false"}
+"""Query parameters a case adds to ``--query``: ``photo-kept`` is the photo with its background kept."""
+RATIOS = (("photo", "photo-kept", 2.0),)
+"""(case, reference case, target): a ratio printed when both were measured (the photo issue asks a
+photo with background removal for at most twice the request that keeps the background)."""
 TARGETS = {"completion": (100.0, 0.30), "photo": (40.0, 0.35)}
 """Case -> (median latency in ms, share outside the networks) the request-speed issue asks for."""
 
@@ -58,31 +65,33 @@ def case_upload(case: str) -> tuple[str, str, str, bytes]:
     """(endpoint, field, file name, bytes) of a case."""
     if case == "completion":
         return "complete", "points", "car_partial_scan.ply", Path("examples/car_partial_scan.ply").read_bytes()
-    if case == "photo":
+    if case in ("photo", "photo-kept"):
         return "image-to-shape", "image", "photo.jpg", photo_jpeg()
     return "image-to-shape", "image", "chair.png", Path("examples/chair.png").read_bytes()
 
 
-def measure(bases: dict[str, str], case: str, requests: int, drop: int, query: str) -> dict[str, dict]:
-    """Per service (name -> base URL) the figures of ``requests`` requests of ``case``, the first
-    ``drop`` left out; with two services the requests alternate between them (the order swapped
-    every round), so that both meet the machine in the same state."""
-    endpoint, field, name, data = case_upload(case)
-    latency = {k: [] for k in bases}
-    stages: dict[str, dict[str, list[float]]] = {k: {} for k in bases}
+def measure(arms: dict[str, tuple[str, str]], requests: int, drop: int, query: str) -> dict[str, dict]:
+    """Per arm (label -> (service base URL, case)) the figures of ``requests`` requests, the first
+    ``drop`` left out; the arms' requests alternate (the order swapped every round), so that all
+    meet the machine in the same state."""
+    latency = {k: [] for k in arms}
+    stages: dict[str, dict[str, list[float]]] = {k: {} for k in arms}
     with httpx.Client(timeout=120) as client:
         for i in range(requests):
-            for side in (list(bases) if i % 2 == 0 else list(bases)[::-1]):
-                url = f"{bases[side]}/v1/{endpoint}" + (f"?{query}" if query else "")
+            for label in (list(arms) if i % 2 == 0 else list(arms)[::-1]):
+                base, case = arms[label]
+                endpoint, field, name, data = case_upload(case)
+                params = "&".join(q for q in (query, CASE_QUERY.get(case, "")) if q)
                 t = time.perf_counter()
-                r = client.post(url, files={field: (name, data)})
+                r = client.post(f"{base}/v1/{endpoint}" + (f"?{params}" if params else ""), files={field: (name, data)})
                 dt = time.perf_counter() - t
                 if r.status_code != 200:
-                    raise RuntimeError(f"{case} ({side}): {r.status_code} {r.text[:200]}")
-                latency[side].append(dt)
+                    raise RuntimeError(f"{case} ({label}): {r.status_code} {r.text[:200]}")
+                latency[label].append(dt)
                 for stage, sec in _stages(r.headers.get("server-timing", "")).items():
-                    stages[side].setdefault(stage, []).append(sec)
-    return {side: _row(case, latency[side][drop:], {k: v[drop:] for k, v in stages[side].items()}) for side in bases}
+                    stages[label].setdefault(stage, []).append(sec)
+    return {label: _row(arms[label][1], latency[label][drop:], {k: v[drop:] for k, v in stages[label].items()})
+            for label in arms}
 
 
 def _row(case: str, latency: list[float], stages: dict[str, list[float]]) -> dict:
@@ -113,7 +122,11 @@ def main(argv: list[str] | None = None) -> int:
         bases = {"this": stack.enter_context(serve())[0]}
         if args.against:
             bases["other"] = stack.enter_context(serve(cwd=args.against))[0]
-        rows = [measure(bases, c, args.requests, args.drop, args.query) for c in args.cases]
+        rows = [measure({side: (base, c) for side, base in bases.items()}, args.requests, args.drop, args.query)
+                for c in args.cases]
+        pairs = [(c, ref, target, measure({c: (bases["this"], c), ref: (bases["this"], ref)}, args.requests,
+                                          args.drop, args.query))
+                 for c, ref, target in RATIOS if c in args.cases and ref in args.cases]
     print(f"{args.requests - args.drop} requests a case (first {args.drop} dropped), one at a time"
           + (f", ?{args.query}" if args.query else "")
           + (f", alternating with {args.against}" if args.against else ""))
@@ -130,6 +143,10 @@ def main(argv: list[str] | None = None) -> int:
             ratios = {k: v / other["stage_ms"][k] for k, v in this["stage_ms"].items() if other["stage_ms"].get(k)}
             print(f"            this / other: p50 {this['p50_ms'] / other['p50_ms']:.2f}x, worst "
                   f"{this['worst_ms'] / other['worst_ms']:.2f}x; " + ", ".join(f"{k} {v:.2f}x" for k, v in ratios.items()))
+    for case, reference, target, both in pairs:
+        a, b = both[case], both[reference]
+        print(f"{case} / {reference}, requests alternating: p50 {a['p50_ms']:.1f} / {b['p50_ms']:.1f} ms = "
+              f"{a['p50_ms'] / b['p50_ms']:.2f}x, worst {a['worst_ms'] / b['worst_ms']:.2f}x  (target: <= {target:g}x)")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0
