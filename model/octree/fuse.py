@@ -50,6 +50,7 @@ class _Flat:
 
 
 def _flat(tree: Octree, depth: int) -> _Flat:
+    """``tree``'s levels 0..``depth`` flattened for the compiled walk (:class:`_Flat`)."""
     levels = tree.levels[:depth + 1]
     start = np.concatenate([[0], np.cumsum([len(lv) for lv in levels])]).astype(np.int64)
     return _Flat(start, np.concatenate([lv.label for lv in levels]),
