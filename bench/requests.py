@@ -76,11 +76,12 @@ def measure(arms: dict[str, tuple[str, str]], requests: int, drop: int, query: s
     meet the machine in the same state."""
     latency = {k: [] for k in arms}
     stages: dict[str, dict[str, list[float]]] = {k: {} for k in arms}
+    uploads = {case: case_upload(case) for _, case in arms.values()}        # made once, not timed
     with httpx.Client(timeout=120) as client:
         for i in range(requests):
             for label in (list(arms) if i % 2 == 0 else list(arms)[::-1]):
                 base, case = arms[label]
-                endpoint, field, name, data = case_upload(case)
+                endpoint, field, name, data = uploads[case]
                 params = "&".join(q for q in (query, CASE_QUERY.get(case, "")) if q)
                 t = time.perf_counter()
                 r = client.post(f"{base}/v1/{endpoint}" + (f"?{params}" if params else ""), files={field: (name, data)})
@@ -106,14 +107,18 @@ def main(argv: list[str] | None = None) -> int:
     ap = command_parser("python -m bench.requests", __doc__, ["python -m bench.requests --cases completion photo",
                                                               "python -m bench.requests --against ../aocnn-98dd16a"])
     ap.add_argument("--requests", type=int, default=12, help="requests per case (default 12)")
-    ap.add_argument("--drop", type=int, default=2, help="first requests left out (default 2)")
+    ap.add_argument("--drop", type=int, default=2, help="first requests left out (default 2; fewer than --requests)")
     ap.add_argument("--cases", nargs="+", choices=sorted(NETWORKS), default=["completion", "photo", "render"],
                     help="the requests measured (default: completion photo render)")
     ap.add_argument("--query", default="", help="query parameters of every request (default: none)")
     ap.add_argument("--against", default=None, help="a checkout of another version (e.g. a git worktree): its "
                     "service runs beside this one, requests alternate, and the ratios are printed")
-    ap.add_argument("--json", default=None, help="also write the figures here")
+    ap.add_argument("--json", default=None, help="also write the figures here (per case {this, other}; "
+                    "default: none)")
     args = ap.parse_args(argv)
+    if not 0 <= args.drop < args.requests:
+        print(f"error: --drop must be at least 0 and below --requests ({args.requests}), got {args.drop}", file=sys.stderr)
+        return 2
     if args.against and not (Path(args.against) / "service" / "__main__.py").is_file():
         print(f"error: --against {args.against} is not a checkout of this project (no service/__main__.py)",
               file=sys.stderr)

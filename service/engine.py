@@ -99,7 +99,7 @@ class Engine:
                 latent = rt.encode_image(np.zeros((1, 3, size, size), np.float32))
                 if rt.has_foreground:                      # its network and the guided filter's kernel
                     try:
-                        object_mask(np.zeros((240, 320, 3), np.uint8), rt.segment, b.mask_spec() or MaskSpec())
+                        object_mask(np.zeros((240, 320, 3), np.uint8), rt.segment, b.mask_spec())
                     except NoObjectError:
                         pass
             elif b.task in (Task.COMPLETION, Task.AUTOENCODER, Task.CLASSIFY):

@@ -1,8 +1,8 @@
 """The object's mask in an opaque photo: the foreground network's input and output, the guided
 filter that brings its grid to the photo's pixels, the clean-up, the second look at a small
 object, and the refinement network's look at the object's square.  One path for training,
-evaluation, the CLI and the service.  NumPy, SciPy and Pillow only (no torch); the networks are
-passed in as callables."""
+evaluation, the CLI and the service.  NumPy, SciPy, Pillow and one numba kernel (the guided
+filter's blend) only (no torch); the networks are passed in as callables."""
 
 from __future__ import annotations
 
@@ -156,7 +156,7 @@ def clean_mask(mask: np.ndarray, spec: MaskSpec, area: int | None = None) -> np.
 
 
 def cross_dilation(mask: np.ndarray, times: int) -> np.ndarray:
-    """A boolean mask dilated ``times`` times by the 4-neighbour cross (``ndimage.binary_dilation``
+    """A 2-D boolean mask dilated ``times`` times by the 4-neighbour cross (``ndimage.binary_dilation``
     with its default structure, ``iterations=times``, nothing beyond the border), by shifted ORs."""
     out = mask.copy()
     for _ in range(times):
@@ -212,9 +212,13 @@ def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float,
 def bilinear_blend(a: np.ndarray, b: np.ndarray, guide: np.ndarray) -> np.ndarray:
     """``clip(A guide + B, 0, 1)``, float32 (H, W), where ``A`` and ``B`` are ``a`` and ``b`` (h, w)
     float32 resized to the guide's (H, W) by :func:`resize_mask`'s bilinear resizing (Pillow's
-    two-pass resampling: double sums, float32 between the passes, the reduced direction first:
-    the same bits), computed without making ``A`` and ``B`` (compiled; a quarter of the time)."""
+    two-pass resampling as Pillow 13 does it: double sums, float32 between the passes, the reduced
+    direction first, no pass where a size does not change: the same bits for finite maps; a NaN or
+    infinite coefficient may spread differently where a direction is reduced), computed without
+    making ``A`` and ``B`` (compiled; a quarter of the time)."""
     (h, w), (H, W) = a.shape, guide.shape
+    if b.shape != a.shape:
+        raise ValueError(f"a and b must have one shape, got {a.shape} and {b.shape}")
     across, down = _bilinear_taps(w, W), _bilinear_taps(h, H)
     out = np.empty((H, W), np.float32)
     _blend(np.ascontiguousarray(a, np.float32), np.ascontiguousarray(b, np.float32),
@@ -252,8 +256,8 @@ def _bilinear_taps(size: int, out: int) -> tuple[np.ndarray, np.ndarray]:
 @compiled
 def _blend(a, b, guide, across_bounds, across, down_bounds, down, out) -> None:
     """:func:`bilinear_blend` into ``out``, in Pillow's order of passes (down first where the rows
-    are reduced, else across first), each tap sum in double from 0 in tap order and stored as
-    float32, then blended row by row."""
+    are reduced, else across first; a direction whose size does not change has no pass), each tap
+    sum in double from 0 in tap order and stored as float32, then blended row by row."""
     h, w = a.shape
     H, W = guide.shape
     sa = np.empty(max(w, W))
@@ -268,16 +272,27 @@ def _blend(a, b, guide, across_bounds, across, down_bounds, down, out) -> None:
                 rows_b[yy, x] = sb[x]
         for yy in range(H):
             for xx in range(W):
-                va, vb = _across(rows_a, rows_b, yy, across_bounds[xx, 0], across_bounds[xx, 1], across[xx])
+                if w == W:
+                    va, vb = np.float64(rows_a[yy, xx]), np.float64(rows_b[yy, xx])
+                else:
+                    va, vb = _across(rows_a, rows_b, yy, across_bounds[xx, 0], across_bounds[xx, 1], across[xx])
                 out[yy, xx] = _blended(np.float32(va), np.float32(vb), guide[yy, xx])
         return
     rows_a = np.empty((h, W), np.float32)              # across first: (h, W) rows, then down and blend
     rows_b = np.empty((h, W), np.float32)
     for y in range(h):
         for xx in range(W):
-            rows_a[y, xx], rows_b[y, xx] = _across(a, b, y, across_bounds[xx, 0], across_bounds[xx, 1], across[xx])
+            if w == W:
+                rows_a[y, xx], rows_b[y, xx] = a[y, xx], b[y, xx]
+            else:
+                rows_a[y, xx], rows_b[y, xx] = _across(a, b, y, across_bounds[xx, 0], across_bounds[xx, 1],
+                                                       across[xx])
     for yy in range(H):
-        _down_row(rows_a, rows_b, down_bounds[yy, 0], down_bounds[yy, 1], down[yy], sa, sb)
+        if h == H:
+            for xx in range(W):
+                sa[xx], sb[xx] = rows_a[yy, xx], rows_b[yy, xx]
+        else:
+            _down_row(rows_a, rows_b, down_bounds[yy, 0], down_bounds[yy, 1], down[yy], sa, sb)
         for xx in range(W):
             out[yy, xx] = _blended(np.float32(sa[xx]), np.float32(sb[xx]), guide[yy, xx])
 

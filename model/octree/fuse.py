@@ -180,8 +180,8 @@ def _walk(depth: int, tolerance: float, s_start, s_label, s_child, s_live, s_pla
     counts = np.empty(cap, np.int32)
     m = 0
     top = 8 * (depth + 1) + 1
-    si = np.empty((top, 8), np.int64)           # d, x, y, z, then kind, row, sd, sr of the scan, of the output
-    sf = np.empty((top, 8))                     # n0, n1, n2, level of the scan, of the output
+    si = np.empty((top, 8), np.int64)           # d, x, y, z, then the scan's kind, row, sd, sr
+    sf = np.empty((top, 4))                     # the scan's n0, n1, n2, level
     sk = np.empty(top, np.uint64)
     last = depth == 0
     si[0, :4] = 0
@@ -189,8 +189,8 @@ def _walk(depth: int, tolerance: float, s_start, s_label, s_child, s_live, s_pla
         _node_state(0, 0, 0, 0, 0, last, s_start, s_label, s_live, s_plane)
     ok, orow, osd, osr, on0, on1, on2, olev = _node_state(0, 0, 0, 0, 0, last, o_start, o_label, o_live, o_plane)
     sk[0] = 0
-    o_i = np.empty((top, 4), np.int64)
-    o_f = np.empty((top, 4))
+    o_i = np.empty((top, 4), np.int64)          # the output's kind, row, sd, sr
+    o_f = np.empty((top, 4))                    # the output's n0, n1, n2, level
     o_i[0, 0], o_i[0, 1], o_i[0, 2], o_i[0, 3] = ok, orow, osd, osr
     o_f[0, 0], o_f[0, 1], o_f[0, 2], o_f[0, 3] = on0, on1, on2, olev
     n = 1
@@ -201,7 +201,7 @@ def _walk(depth: int, tolerance: float, s_start, s_label, s_child, s_live, s_pla
         s0, s1, s2, sL = sf[n, 0], sf[n, 1], sf[n, 2], sf[n, 3]
         oK, oR, oSD, oSR = o_i[n, 0], o_i[n, 1], o_i[n, 2], o_i[n, 3]
         o0, o1, o2, oL = o_f[n, 0], o_f[n, 1], o_f[n, 2], o_f[n, 3]
-        if m + 2 > cap:
+        if m + 1 > cap:                                    # an octant emits at most one leaf
             cap *= 2
             at, keys, planes = _grown(at, cap), _grown(keys, cap), _grown(planes, cap)
             errors, counts = _grown(errors, cap), _grown(counts, cap)
@@ -243,8 +243,7 @@ def _from_leaves(like: Octree, leaves, neighbors: bool) -> Octree:
     None (the keys of all depths cover disjoint regions): every ancestor of a leaf split (with all
     8 children), everything else empty."""
     depth = like.depth
-    parts = leaves
-    leaf_keys = [p[0] if p else np.zeros(0, np.uint64) for p in parts]
+    leaf_keys = [p[0] if p is not None else np.zeros(0, np.uint64) for p in leaves]
     # the ancestors of the leaves, per depth, bottom up: the parents of the next depth's leaves and splits
     split_keys = [np.zeros(0, np.uint64)] * (depth + 1)
     for d in range(depth - 1, -1, -1):
@@ -258,8 +257,8 @@ def _from_leaves(like: Octree, leaves, neighbors: bool) -> Octree:
         plane = np.zeros((n, 4), np.float32)
         error = np.full(n, np.nan, np.float32)
         npoints = np.zeros(n, np.int32)
-        if parts[d] is not None:
-            keys, planes, errors, counts = parts[d]
+        if leaves[d] is not None:
+            keys, planes, errors, counts = leaves[d]
             at = morton.lookup(key, keys)
             if np.any(at == n):
                 raise ValueError(f"depth {d}: leaves nest or lie outside the tree")

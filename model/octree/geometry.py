@@ -160,7 +160,7 @@ def plane_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors (u, v) with ``u x v = n`` spanning each plane (normals (M, 3)): ``u`` is
     ``n`` crossed with the axis along its smallest component (the first of equals), normalised,
     and ``v = n x u``, computed row by row (compiled) as NumPy's ``cross`` and ``linalg.norm``
-    compute them (a zero normal gives NaN vectors)."""
+    compute them (a zero normal gives NaN vectors); float64, whatever the normals' type."""
     normal = np.ascontiguousarray(normal, dtype=np.float64)
     u, v = np.empty_like(normal), np.empty_like(normal)
     _plane_basis(normal, u, v)

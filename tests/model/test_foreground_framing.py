@@ -408,3 +408,21 @@ def test_the_blend_of_the_guided_filter_is_pillows_bilinear_resizing_bit_for_bit
         want = np.clip(resize_mask(a, H, W) * guide + resize_mask(b, H, W), 0.0, 1.0)
         got = bilinear_blend(a, b, guide)
         assert got.dtype == np.float32 and np.array_equal(got.view(np.uint32), want.view(np.uint32)), (h, w, H, W)
+
+
+def test_the_blend_keeps_pillows_skipped_pass_and_non_finite_values():
+    """Where a size does not change Pillow makes no pass in that direction: an infinite or NaN
+    coefficient stays in its own row or column, as in Pillow's output (a tap of weight 0 would
+    spread NaN to its neighbours)."""
+    rng = np.random.default_rng(5)
+    for h, w, H, W in ((5, 4, 5, 9), (6, 7, 13, 7), (5, 4, 5, 4 * 40), (3, 9, 50, 9)):
+        a, b = rng.normal(0, 1, (h, w)).astype(np.float32), rng.normal(0, 1, (h, w)).astype(np.float32)
+        a[2, 1], b[1, 2] = np.inf, np.nan
+        guide = rng.random((H, W)).astype(np.float32)
+        with np.errstate(invalid="ignore"):
+            want = np.clip(resize_mask(a, H, W) * guide + resize_mask(b, H, W), 0.0, 1.0)
+        got = bilinear_blend(a, b, guide)
+        assert np.array_equal(np.isnan(got), np.isnan(want)), (h, w, H, W)
+        assert np.array_equal(got[~np.isnan(got)], want[~np.isnan(want)]), (h, w, H, W)
+    with pytest.raises(ValueError, match="one shape"):
+        bilinear_blend(np.zeros((4, 4), np.float32), np.zeros((4, 5), np.float32), np.zeros((8, 8), np.float32))

@@ -15,6 +15,7 @@ from model.octree.neighbors import build_neighbors
 from model.octree.patches import patches_to_mesh
 
 from .conftest import sphere_points
+from .reference_fuse import reference_leaves
 
 
 def _leaves(tree):
@@ -219,13 +220,12 @@ def _jittered(tree, seed):
     return out
 
 
-@pytest.mark.parametrize("case", ["sphere", "jittered", "box", "deeper scan", "full output", "full scan"])
+@pytest.mark.parametrize("case", ["sphere", "jittered", "box", "deeper scan", "full output", "full scan",
+                                  "shallow output"])
 def test_the_compiled_walk_gives_the_reference_fusions_leaves_bit_for_bit(sphere_case, case):
     """Against the plain NumPy fusion (tests/octree/reference_fuse.py): the same leaves, planes,
     errors and point counts, bit for bit, where the trees agree, where a scan leaf is refined
     under the output's splits (and the reverse), claimed, or cut from a deeper scan."""
-    from .reference_fuse import reference_leaves
-
     pts, seen, frame, scan, whole = sphere_case
     nrm = sphere_points(40_000)[1]
     if case == "jittered":
@@ -240,8 +240,10 @@ def test_the_compiled_walk_gives_the_reference_fusions_leaves_bit_for_bit(sphere
         whole = _jittered(build_octree(validate(pts, nrm), 6, normalization=frame, adaptive=False), 1)
     elif case == "full scan":                 # every coarse output leaf refined under the scan's splits
         scan = scan_octree(validate(pts[seen], nrm[seen]), 6, adaptive=False)
+    elif case == "shallow output":            # an output at its full depth under a scan four levels deeper
+        whole = build_octree(validate(pts, nrm), 2, normalization=frame)
     fused = keep_scan(whole, scan)
     _check_structure(fused)
     want = reference_leaves(whole, scan)
-    assert len(want) > 1000
+    assert len(want) > (40 if case == "shallow output" else 1000)
     assert _fused_leaves(fused) == want
