@@ -110,9 +110,15 @@ def crop_input(rgb: np.ndarray, first: np.ndarray, square: tuple[int, int, int, 
 def resize_mask(mask: np.ndarray, height: int, width: int) -> np.ndarray:
     """A float mask resized to (height, width): bilinear up, box-filtered down."""
     img = Image.fromarray(np.ascontiguousarray(mask, dtype=np.float32), "F")
-    down = height <= img.height and width <= img.width
+    down = _box_filtered(img.height, img.width, height, width)
     return np.asarray(img.resize((width, height), Image.Resampling.BOX if down else Image.Resampling.BILINEAR),
                       np.float32)
+
+
+def _box_filtered(h: int, w: int, height: int, width: int) -> bool:
+    """Whether :func:`resize_mask` takes an (h, w) mask to (height, width) with the box filter (both
+    sides shrink or stay), not bilinearly."""
+    return height <= h and width <= w
 
 
 def mask_output(logits: np.ndarray) -> np.ndarray:
@@ -202,7 +208,7 @@ def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: float, eps: float,
     mean_i, mean_p = box(g), box(p)
     a = (box(g * p) - mean_i * mean_p) / (box(g * g) - mean_i * mean_i + np.float32(eps))
     a_mean, b_mean = box(a), box(mean_p - a * mean_i)
-    if (h, w) != (H, W) and not (H <= h and W <= w):       # resized bilinearly: in one pass, A and B never made
+    if (h, w) != (H, W) and not _box_filtered(h, w, H, W):  # resized bilinearly: in one pass, A and B never made
         return bilinear_blend(a_mean, b_mean, guide)
     if (h, w) != (H, W):
         a_mean, b_mean = resize_mask(a_mean, H, W), resize_mask(b_mean, H, W)

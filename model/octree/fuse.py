@@ -102,6 +102,13 @@ def _live(tree: Octree, depth: int) -> list[np.ndarray]:
 
 
 @inlined
+def _centre_dot(n0: float, n1: float, n2: float, x: int, y: int, z: int, size: float) -> float:
+    """``n . c`` for the centre ``c`` of octant ``x, y, z`` of edge ``size``, in NumPy's order
+    (``(n * ((xyz + 0.5) * size)).sum(1)``: left to right)."""
+    return (n0 * ((x + 0.5) * size) + n1 * ((y + 0.5) * size)) + n2 * ((z + 0.5) * size)
+
+
+@inlined
 def _node_state(d: int, r: int, x: int, y: int, z: int, last: bool, start, label, live, plane):
     """A tree's own node ``r`` of depth ``d`` (octant ``x, y, z``) as a side's state (kind, row,
     source depth, source row, the unit normal and ``normal . x`` of a leaf's plane, zeros
@@ -118,8 +125,7 @@ def _node_state(d: int, r: int, x: int, y: int, z: int, last: bool, start, label
     norm = max(np.sqrt(n0 * n0 + n1 * n1 + n2 * n2), 1e-12)
     n0, n1, n2 = n0 / norm, n1 / norm, n2 / norm
     size = 1.0 / (1 << d)
-    level = (n0 * ((x + 0.5) * size) + n1 * ((y + 0.5) * size)) + n2 * ((z + 0.5) * size) \
-        - np.float64(plane[g, 3]) * PLANE_SCALE * size
+    level = _centre_dot(n0, n1, n2, x, y, z, size) - np.float64(plane[g, 3]) * PLANE_SCALE * size
     return kind, r, d, r, n0, n1, n2, level
 
 
@@ -135,7 +141,7 @@ def _child_state(d: int, slot: int, x: int, y: int, z: int, last: bool, toleranc
     out = EMPTY
     if kind == LEAF or kind == _CLAIMED:
         size = 1.0 / (1 << (d + 1))
-        gap = abs((n0 * ((x + 0.5) * size) + n1 * ((y + 0.5) * size)) + n2 * ((z + 0.5) * size) - level)
+        gap = abs(_centre_dot(n0, n1, n2, x, y, z, size) - level)
         reach = 0.5 * size * ((abs(n0) + abs(n1)) + abs(n2))
         if gap <= reach:
             out = _CLAIMED if kind == _CLAIMED else LEAF
@@ -158,7 +164,7 @@ def _emit(m: int, d: int, key, x: int, y: int, z: int, row: int, sd: int, sr: in
         errors[m], counts[m] = error[g], npoints[g]
         return
     size = 1.0 / (1 << d)
-    offset = (n0 * ((x + 0.5) * size) + n1 * ((y + 0.5) * size)) + n2 * ((z + 0.5) * size) - level
+    offset = _centre_dot(n0, n1, n2, x, y, z, size) - level
     planes[m, 0], planes[m, 1], planes[m, 2] = n0, n1, n2
     planes[m, 3] = offset / (PLANE_SCALE * size)
     errors[m], counts[m] = error[start[sd] + sr], 0
