@@ -26,8 +26,8 @@ distance of the closed surface before its vertices are merged; and the same for 
 approach compared, marching cubes on the signed field (:func:`marching_cubes_surface`).
 
 "closed (welded)" is :func:`model.surface.checks.is_closed_embedded`: closed and 2-manifold as a
-reader that merges vertices by position loads the mesh.  Faces that cross other faces are counted
-by MeshLab where PyMeshLab is installed.
+reader that merges vertices by position loads the mesh.  "crossing faces": faces that cross
+another face (:func:`model.surface.crossing.crossing_faces`, MeshLab's rule in double precision).
 """
 
 from __future__ import annotations
@@ -110,19 +110,6 @@ def scanned_octrees(depths: list[int], mesh_dir: str) -> list[tuple[str, object]
     return out
 
 
-def self_intersecting(vertices: np.ndarray, faces: np.ndarray) -> str:
-    """How many faces cross another face (MeshLab's self-intersection selection), or "-" where
-    PyMeshLab is not installed (``pip install pymeshlab``: a measurement tool, not a dependency)."""
-    try:
-        import pymeshlab  # optional: 100 MB, used by this measurement only
-    except ImportError:
-        return "-"
-    meshes = pymeshlab.MeshSet()
-    meshes.add_mesh(pymeshlab.Mesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int32)))
-    meshes.compute_selection_by_self_intersections_per_face()
-    return str(meshes.current_mesh().selected_face_number())
-
-
 def decoded_octrees(data: str, shapes: int) -> list[tuple[str, object]]:
     """The shipped image model's outputs for the first render of test shapes (one per category in turn)."""
     import json
@@ -164,12 +151,13 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     from model.octree.patches import patch_mesh
     from model.surface import watertight_mesh
+    from model.surface.crossing import crossing_faces
 
     if args.accuracy:
         return accuracy(args.depths, args.mesh_dir)
     inputs = decoded_octrees(args.data, args.shapes) + scanned_octrees(args.depths, args.mesh_dir)
     print("| input | leaves | patch faces | closed faces | ratio | unmerged faces | closed (welded) "
-          "| self-intersecting faces | median ms | worst ms | unmerged median ms | dense MC ms | worst / dense |")
+          "| crossing faces | median ms | worst ms | unmerged median ms | dense MC ms | worst / dense |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name, tree in inputs:
         med, worst, m = timed(lambda: watertight_mesh(tree, world=False), args.repeats)
@@ -177,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         patches = len(patch_mesh(tree, world=False).faces)
         dense = dense_reference(tree)
         print(f"| {name} | {sum(tree.leaves_per_depth())} | {patches} | {len(m.faces)} | {len(m.faces) / max(patches, 1):.1f} "
-              f"| {len(fine.faces)} | {'yes' if m.closed else 'NO'} | {self_intersecting(m.vertices, m.faces)} "
+              f"| {len(fine.faces)} | {'yes' if m.closed else 'NO'} | {crossing_faces(m.vertices, m.faces).sum()} "
               f"| {med * 1e3:.1f} | {worst * 1e3:.1f} | {fine_med * 1e3:.1f} | {dense * 1e3:.1f} | {worst / dense:.2f} |",
               flush=True)
     if args.figure:
