@@ -283,6 +283,7 @@ class _ShapeEvaluation:
                                 "mask_sources": {k: sources.count(k) for k in sorted(set(sources))}}
         if self.surfaces:
             results["watertight_not_closed"] = sum(1 for r in per_shape if r.get("watertight_closed") is False)
+            results["watertight_crossing"] = sum(1 for r in per_shape if (r.get("watertight_crossing_share") or 0) > 0)
         for m in self.metrics:
             per_cat: dict[str, list[float]] = {}
             for r in per_shape:
@@ -384,7 +385,8 @@ def main(argv: list[str] | None = None) -> int:
         text += (f"; drawn by area: patches {results['patches_area_chamfer_x1e3_category_mean']:.3f}, closed surface "
                  f"{results['watertight_chamfer_x1e3_category_mean']:.3f} "
                  f"(F-score {results['patches_area_fscore_category_mean']:.3f}"
-                 f" and {results['watertight_fscore_category_mean']:.3f}; {results['watertight_not_closed']} not closed)")
+                 f" and {results['watertight_fscore_category_mean']:.3f}; {results['watertight_not_closed']} not closed, "
+                 f"{results['watertight_crossing']} with faces crossing others)")
     if results.get("mask_iou_category_mean") is not None:
         text += f"; mask IoU {results['mask_iou_category_mean']:.3f}"
     print(text)

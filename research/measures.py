@@ -12,6 +12,7 @@ import trimesh
 from model.octree import Octree
 from model.octree.metrics import Reference, mean_squared_distance, missing_part
 from model.surface import SURFACES, surface_mesh
+from model.surface.crossing import crossing_faces
 from model.train.completion import truth_view
 from model.train.data import manifest_rows
 
@@ -31,7 +32,8 @@ def fscore_threshold(truth: np.ndarray) -> float:
 
 def surface_rows(sample, truth: Reference, tree: Octree, count: int, seed: int, threshold: float) -> dict:
     """Chamfer (x1e3) and F-score (at ``threshold``) of both surfaces of the decoded octree against
-    the truth, and whether the closed one is closed.  The surfaces are measured on ``count``
+    the truth, whether the closed one is closed and the share of its faces that cross or touch
+    another (:func:`model.surface.crossing.crossing_faces`).  The surfaces are measured on ``count``
     points drawn uniformly at random by area (as many as the output's, at least 1,000): random
     draws leave gaps that a stratified protocol does not, so only draws of the same kind compare
     the two surfaces (the patches are measured both ways)."""
@@ -41,6 +43,7 @@ def surface_rows(sample, truth: Reference, tree: Octree, count: int, seed: int, 
         name = "watertight" if kind == "watertight" else "patches_area"
         if kind == "watertight":
             row["watertight_closed"] = m.closed
+            row["watertight_crossing_share"] = float(crossing_faces(m.vertices, m.faces).mean()) if len(m.faces) else 0.0
         if not len(m.faces):
             row.update({f"{name}_chamfer_x1e3": None, f"{name}_fscore": None})
             continue

@@ -64,7 +64,7 @@ def join_results(results: list[dict]) -> dict:
         joined["input"] = {**first["input"], "mask_sources": {
             k: sum(s.get(k, 0) for s in sources) for k in sorted({k for s in sources for k in s})}}
     joined["split"] = "+".join(str(r.get("split")) for r in results)
-    for count in ("shapes", "empty_outputs", "watertight_not_closed"):
+    for count in ("shapes", "empty_outputs", "watertight_not_closed", "watertight_crossing"):
         if count in first:
             joined[count] = sum(int(r.get(count) or 0) for r in results)
     for m in [k[:-len("_category_mean")] for k in first if k.endswith("_category_mean")]:

@@ -162,12 +162,14 @@ def mask_table(results: list[dict], labels: list[str]) -> str:
 
 def surfaces_table(results: list[dict], labels: list[str], draws: int = 10_000) -> str:
     """Markdown: per result, the closed surface against the patches (Chamfer x1e3 and F-score
-    category means, both sampled by area), the paired Chamfer difference and the open meshes."""
+    category means, both sampled by area), the paired Chamfer difference, the open meshes and
+    the meshes with faces crossing others (with the median share of such faces; "-" for results
+    measured before it was)."""
     lines = ["Closed surface against the patches, both sampled by area (closed − patches, Chamfer x1e3 "
              "category mean, 95% bootstrap):",
              "| run | patches | closed | difference | 95% interval | patches better / closed better / tie "
-             "| F-score patches / closed | not closed | shapes |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| F-score patches / closed | not closed | crossing themselves (median share) | shapes |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for label, r in zip(labels, results):
         if r.get("watertight_chamfer_x1e3_category_mean") is None:
             raise ValueError(f"{label} has no closed-surface figures: give results of the image or completion task")
@@ -177,8 +179,16 @@ def surfaces_table(results: list[dict], labels: list[str], draws: int = 10_000) 
                      f"{r['watertight_chamfer_x1e3_category_mean']:.3f} | {d.mean:+.3f} | "
                      f"[{d.low:+.3f}, {d.high:+.3f}] | {d.base_wins} / {d.other_wins} / {d.ties} | "
                      f"{r['patches_area_fscore_category_mean']:.3f} / {r['watertight_fscore_category_mean']:.3f} | "
-                     f"{r['watertight_not_closed']} | {d.shapes} |")
+                     f"{r['watertight_not_closed']} | {_crossing(r['per_shape'])} | {d.shapes} |")
     return "\n".join(lines)
+
+
+def _crossing(rows: list[dict]) -> str:
+    """How many outputs have faces crossing others, and the median share of such faces."""
+    shares = [row["watertight_crossing_share"] for row in rows if row.get("watertight_crossing_share") is not None]
+    if not shares:
+        return "-"
+    return f"{sum(1 for x in shares if x > 0)} ({100 * float(np.median(shares)):.1f}%)"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -75,6 +75,8 @@ def test_completion_training_resumes_and_evaluates_against_the_input_floor(scan_
                               "--resolution", "32", "--normals", normals, "--out", str(out)]) == 0
         res = json.loads(out.read_text())
         assert res["task"] == "completion" and res["normals"] == normals and res["shapes"] == 4
+        shares = [r["watertight_crossing_share"] for r in res["per_shape"]]     # the closed surface's crossings
+        assert all(0 <= x <= 1 for x in shares) and res["watertight_crossing"] == sum(x > 0 for x in shares)
         floor = [r["input_chamfer_x1e3"] for r in res["per_shape"]]
         assert all(0 < f < 50 for f in floor)                 # partial scans of the truth: close, not equal
         # the missing part lies beyond 1/32 of the cube from the scan, by definition, at every depth

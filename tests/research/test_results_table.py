@@ -94,7 +94,12 @@ def test_surfaces_compares_the_closed_mesh_with_the_patches_inside_each_result(t
     row = capsys.readouterr().out.splitlines()[-1]
     # car: +0.5 and 0; chair: 0 and -1 -> category means +0.25 and -0.5 -> -0.125
     assert row.startswith("| a | 2.000 | 1.875 | -0.125 | [")
-    assert "| 1 / 1 / 2 | 0.500 / 0.400 | 0 | 4 |" in row
+    assert "| 1 / 1 / 2 | 0.500 / 0.400 | 0 | - | 4 |" in row                # measured before crossings were
+    for r, share in zip(a["per_shape"], (0.0, 0.25, 0.125, 0.0)):
+        r["watertight_crossing_share"] = share
+    pa.write_text(json.dumps(a))
+    assert main([str(pa), "--surfaces", "--bootstrap", "200"]) == 0
+    assert "| 0 | 2 (6.2%) | 4 |" in capsys.readouterr().out.splitlines()[-1]    # 2 cross; median of 0, 0, .125, .25
     plain = results({"car": [1.0]})
     pa.write_text(json.dumps(plain))
     assert main([str(pa), "--surfaces"]) == 2
