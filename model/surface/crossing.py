@@ -24,12 +24,15 @@ from ..octree.jit import compiled
 
 
 def crossing_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(F,) bool: the faces that cross another face of the mesh (the module's rule)."""
+    """(F,) bool: the faces that cross another face of the mesh (the module's rule).  Vertices
+    must be finite (ValueError otherwise)."""
     faces = np.ascontiguousarray(faces, dtype=np.int64)
     out = np.zeros(len(faces), bool)
     if len(faces) < 2:
         return out
     v = np.ascontiguousarray(vertices, dtype=np.float64)
+    if not np.isfinite(v[faces]).all():
+        raise ValueError("crossing_faces needs finite vertex positions")
     lo, hi = _boxes(v, faces)
     origin = lo.min(0)
     span = hi.max(0) - origin

@@ -29,6 +29,13 @@ def test_each_rule_on_a_hand_made_pair():
     assert not pair(TRI, np.array([[0.2, 0.2, 0], [0.2, 0.2, 0], [0.2, 0.2, 0]]))   # no area
 
 
+def test_small_and_bad_inputs():
+    assert crossing_faces(TRI, np.zeros((0, 3), np.int64)).shape == (0,)
+    assert not crossing_faces(TRI, np.array([[0, 1, 2]])).any()
+    with pytest.raises(ValueError, match="finite"):
+        crossing_faces(np.vstack([TRI, [[np.nan, 0, 0], [1, 1, 1], [2, 2, 2]]]), np.array([[0, 1, 2], [3, 4, 5]]))
+
+
 def test_faces_on_common_vertices():
     v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, 3], [0.3, 0.3, -1], [1, 1, 1], [0.5, -1, 0.5]])
     assert crossing_faces(v, np.array([[0, 1, 2], [0, 3, 4]])).all()       # one vertex; the other's far edge pierces
