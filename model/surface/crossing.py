@@ -37,8 +37,8 @@ def crossing_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     origin = lo.min(0)
     span = hi.max(0) - origin
     cell = max(2.0 * float(np.mean(np.max(hi - lo, axis=1))), float(span.max()) / 1024.0, 1e-300)
-    while np.prod(span // cell + 1) > MAX_CELLS:                  # ~ a fan of faces per cell
-        cell *= 2.0
+    while np.prod(span // cell + 1) > MAX_CELLS or _entries(lo, hi, origin, cell) > ENTRIES * len(faces):
+        cell *= 2.0                                               # ~ a fan of faces per cell
     order = np.argsort(lo[:, 0], kind="stable")                 # each cell's faces by their lowest x
     _cross(v, faces, lo, hi, origin, cell, (span // cell + 1).astype(np.int64), order, out)
     return out
@@ -46,6 +46,13 @@ def crossing_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 MAX_CELLS = 1 << 22
 """The most cells of the grid the faces are sorted into (a coarser grid beyond)."""
+ENTRIES = 16
+"""The most grid cells per face on average (a few large faces make the grid coarser, not huge)."""
+
+
+def _entries(lo: np.ndarray, hi: np.ndarray, origin: np.ndarray, cell: float) -> int:
+    """How many (face, cell) pairs a grid of ``cell`` gives."""
+    return int(np.prod((hi - origin) // cell - (lo - origin) // cell + 1, axis=1).sum())
 
 
 @compiled

@@ -109,3 +109,17 @@ def test_the_grid_finds_what_every_pair_finds(seed):
             brute[f] = brute[g] = True
     got = crossing_faces(v, faces)
     assert brute.sum() > 20 and np.array_equal(got, brute)
+
+
+def test_a_few_huge_faces_beside_many_small_ones_keep_the_grid_small():
+    rng = np.random.default_rng(3)
+    small = (rng.random((4000, 1, 3)) + 0.004 * rng.random((4000, 3, 3))).reshape(-1, 3)
+    huge = np.array([[-5.0, -5, 0.5], [5, -5, 0.5], [0, 5, 0.5]] * 20) + np.repeat(np.arange(20), 3)[:, None] * [0, 0, 1e-3]
+    v = np.vstack([small, huge])
+    faces = np.arange(len(v)).reshape(-1, 3)
+    got = crossing_faces(v, faces)
+    assert got[4000:].all()                                   # the huge faces cross the small ones near z = 0.5
+    lo, hi = v[faces].min(1), v[faces].max(1)
+    near = (lo[:4000, 2] <= 0.52) & (hi[:4000, 2] >= 0.5)
+    alone = crossing_faces(small, faces[:4000])
+    assert np.array_equal(got[:4000] & ~near, alone & ~near)   # away from the plane: the small faces' own crossings
