@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 from model.octree import LEAF, build_octree
 from model.surface import MIN_COMPONENT_FACES, SURFACES, is_closed, surface_mesh, watertight_mesh
 from model.surface.checks import WELD, is_closed_embedded
+from model.surface.crossing import crossing_faces
 from model.surface.dmc import APART, apart
 from model.surface.tables import COMPONENTS, CORNER_COMPONENT, REPAIR, boundary_loops, components
 
@@ -91,8 +92,11 @@ def test_closed_with_the_genus_of_the_shape(shape, genus, depth):
         o = octree_of(trimesh.creation.torus(1.0, 0.35, major_sections=96, minor_sections=48), depth)
     else:
         o = octree_of(trimesh.load(mesh_path(shape), force="mesh"), depth)
-    mesh = check_closed(watertight_mesh(o))
+    m = watertight_mesh(o)
+    mesh = check_closed(m)
     assert mesh.body_count == 1 and mesh.euler_number == 2 - 2 * genus
+    if shape == "sphere":        # smooth and thick: no face crosses another (the torus, the cube, a plate still have some)
+        assert not crossing_faces(m.vertices, m.faces).any()
 
 
 @pytest.mark.parametrize("depth", [5, 6])
