@@ -128,6 +128,7 @@ def _owns_pair(f, g, lo, hi, first, x, y, z) -> bool:
 
 @compiled
 def _faces_cross(v, faces, f, g) -> bool:
+    """Faces ``f`` and ``g`` cross by the module's rule (their common vertices decide the test)."""
     shared = 0
     sf, sg = -1, -1
     for a in range(3):
