@@ -65,7 +65,7 @@ def join_results(results: list[dict]) -> dict:
             k: sum(s.get(k, 0) for s in sources) for k in sorted({k for s in sources for k in s})}}
     joined["split"] = "+".join(str(r.get("split")) for r in results)
     for count in ("shapes", "empty_outputs", "watertight_not_closed", "watertight_crossing"):
-        if count in first:
+        if all(count in r for r in results):                  # a count some results lack is not summed
             joined[count] = sum(int(r.get(count) or 0) for r in results)
     for m in [k[:-len("_category_mean")] for k in first if k.endswith("_category_mean")]:
         kept = [row for row in rows if finite(row.get(m))]

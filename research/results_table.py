@@ -188,7 +188,8 @@ def _crossing(rows: list[dict]) -> str:
     shares = [row["watertight_crossing_share"] for row in rows if row.get("watertight_crossing_share") is not None]
     if not shares:
         return "-"
-    return f"{sum(1 for x in shares if x > 0)} ({100 * float(np.median(shares)):.1f}%)"
+    measured = "" if len(shares) == len(rows) else f" of {len(shares)} measured"
+    return f"{sum(1 for x in shares if x > 0)}{measured} ({100 * float(np.median(shares)):.1f}%)"
 
 
 def main(argv: list[str] | None = None) -> int:

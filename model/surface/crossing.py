@@ -8,12 +8,16 @@ touching counted: two faces on no common vertex cross where the triangles share 
 (Moeller's interval test, and the coplanar case in the plane they share), so a vertex lying on
 another face counts; two faces on one common vertex cross where the edge of either opposite that
 vertex meets the other triangle; two faces on the same three vertices cross; faces on two common
-vertices (neighbours across an edge) do not count, nor does a triangle without area.  On 56
-closed surfaces (13 decoded outputs and 15 real-mesh octrees at depths 6-8, merged and not) it
-marks 99.8% of the faces MeshLab marks and 16% more faces in all: faces that only touch, which
-MeshLab, in single precision and testing a shared vertex's faces on a shortened segment, lets
-pass.  Candidate pairs come from a uniform grid over the faces' bounding boxes, each pair tested
-once (in the cell that holds the lower corner of the boxes' overlap).
+vertices (neighbours across an edge) do not count, nor does a triangle without area (its
+vertices' cross product exactly zero).  On 56 closed surfaces (13 decoded outputs and 15
+real-mesh octrees at depths 6-8, merged and not) it marks 99.8% of the faces MeshLab marks and
+15% more faces in all: faces that only touch, which MeshLab, in single precision and testing a
+shared vertex's faces on a shortened segment, lets pass.  Coordinates are scaled by a power of
+two to below 1 (exactly) so that the interval test's products neither overflow nor underflow;
+where they would still underflow (triangles coplanar to 1e-90) the test divides instead.
+Candidate pairs come from a hashed uniform grid over the faces' bounding boxes, each pair
+tested once (in the cell that holds the lower corner of the boxes' overlap); the few faces much
+larger than the grid's cell are tested against every face whose box they meet.
 """
 
 from __future__ import annotations
@@ -30,29 +34,30 @@ def crossing_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     out = np.zeros(len(faces), bool)
     if len(faces) < 2:
         return out
-    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    v = np.asarray(vertices, dtype=np.float64)
     if not np.isfinite(v[faces]).all():
         raise ValueError("crossing_faces needs finite vertex positions")
+    top = float(np.abs(v[faces]).max())
+    v = np.ascontiguousarray(v * 2.0 ** -np.frexp(top)[1] if top > 0 else v)   # exact: |x| < 1, no overflow
     lo, hi = _boxes(v, faces)
-    origin = lo.min(0)
-    span = hi.max(0) - origin
-    cell = max(2.0 * float(np.mean(np.max(hi - lo, axis=1))), float(span.max()) / 1024.0, 1e-300)
-    while np.prod(span // cell + 1) > MAX_CELLS or _entries(lo, hi, origin, cell) > ENTRIES * len(faces):
-        cell *= 2.0                                               # ~ a fan of faces per cell
+    cell = max(2.0 * float(np.median(np.max(hi - lo, axis=1))), 2.0 ** -40)
+    while True:                                                   # a few large faces are tested on their own
+        first, last = np.floor(lo / cell).astype(np.int64), np.floor(hi / cell).astype(np.int64)
+        large = (last - first).max(1) >= LARGE
+        if large.sum() <= max(LARGE_FACES, int(np.sqrt(len(faces)))):
+            break
+        cell *= 2.0
     order = np.argsort(lo[:, 0], kind="stable")                 # each cell's faces by their lowest x
-    _cross(v, faces, lo, hi, origin, cell, (span // cell + 1).astype(np.int64), order, out)
+    _grid_pairs(v, faces, lo, hi, first, last, large, order, out)
+    _large_pairs(v, faces, lo, hi, np.flatnonzero(large), out)
     return out
 
 
-MAX_CELLS = 1 << 22
-"""The most cells of the grid the faces are sorted into (a coarser grid beyond)."""
-ENTRIES = 16
-"""The most grid cells per face on average (a few large faces make the grid coarser, not huge)."""
-
-
-def _entries(lo: np.ndarray, hi: np.ndarray, origin: np.ndarray, cell: float) -> int:
-    """How many (face, cell) pairs a grid of ``cell`` gives."""
-    return int(np.prod((hi - origin) // cell - (lo - origin) // cell + 1, axis=1).sum())
+LARGE = 4
+"""A face whose box spans this many grid cells more than one along an axis is tested against
+every face whose box it meets, not through the grid (so a few huge faces do not fill it)."""
+LARGE_FACES = 64
+"""The most such faces (or the square root of the face count) before the grid is made coarser."""
 
 
 @compiled
@@ -68,49 +73,78 @@ def _boxes(v: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @compiled
-def _cross(v, faces, lo, hi, origin, cell, dims, order, out) -> None:
-    """Every pair of faces whose boxes share a grid cell tested once; ``out`` marks both faces of a
-    crossing pair.  The (face, cell) entries are sorted by cell (counting sort over the grid), in
-    each cell by the faces' lowest x (``order``), so a face's partners end where they start
-    beyond its box."""
-    nf = len(faces)
-    first = np.empty((nf, 3), np.int64)
-    last = np.empty((nf, 3), np.int64)
-    for f in range(nf):
-        for k in range(3):
-            first[f, k] = min(int((lo[f, k] - origin[k]) / cell), dims[k] - 1)
-            last[f, k] = min(int((hi[f, k] - origin[k]) / cell), dims[k] - 1)
-    start = np.zeros(dims[0] * dims[1] * dims[2] + 1, np.int64)
-    for f in range(nf):
-        for x in range(first[f, 0], last[f, 0] + 1):
-            for y in range(first[f, 1], last[f, 1] + 1):
-                for z in range(first[f, 2], last[f, 2] + 1):
-                    start[(x * dims[1] + y) * dims[2] + z + 1] += 1
-    for c in range(len(start) - 1):
-        start[c + 1] += start[c]
+def _grid_pairs(v, faces, lo, hi, first, last, large, order, out) -> None:
+    """Every pair of the grid's faces (not ``large``) whose boxes share a cell, tested once; ``out``
+    marks both faces of a crossing pair.  The (face, cell) entries are bucketed by a hash of the
+    cell (counting sort), in each bucket by the faces' lowest x (``order``), so a face's partners
+    end where they start beyond its box."""
+    total = 0
+    for f in range(len(faces)):
+        if not large[f]:
+            total += (last[f, 0] - first[f, 0] + 1) * (last[f, 1] - first[f, 1] + 1) * (last[f, 2] - first[f, 2] + 1)
+    buckets = 1
+    while buckets < total:
+        buckets *= 2
+    start = np.zeros(buckets + 1, np.int64)
+    for f in range(len(faces)):
+        if not large[f]:
+            for x in range(first[f, 0], last[f, 0] + 1):
+                for y in range(first[f, 1], last[f, 1] + 1):
+                    for z in range(first[f, 2], last[f, 2] + 1):
+                        start[_bucket(x, y, z, buckets) + 1] += 1
+    for b in range(buckets):
+        start[b + 1] += start[b]
     fill = start[:-1].copy()
-    entry = np.empty(start[-1], np.int64)
+    entry = np.empty(total, np.int64)
+    cells = np.empty((total, 3), np.int64)
     for f in order:
-        for x in range(first[f, 0], last[f, 0] + 1):
-            for y in range(first[f, 1], last[f, 1] + 1):
-                for z in range(first[f, 2], last[f, 2] + 1):
-                    c = (x * dims[1] + y) * dims[2] + z
-                    entry[fill[c]] = f
-                    fill[c] += 1
-    for c in range(len(start) - 1):
-        if start[c + 1] - start[c] < 2:
-            continue
-        x, y, z = c // (dims[1] * dims[2]), c // dims[2] % dims[1], c % dims[2]
-        for i in range(start[c], start[c + 1]):
+        if not large[f]:
+            for x in range(first[f, 0], last[f, 0] + 1):
+                for y in range(first[f, 1], last[f, 1] + 1):
+                    for z in range(first[f, 2], last[f, 2] + 1):
+                        b = _bucket(x, y, z, buckets)
+                        entry[fill[b]] = f
+                        cells[fill[b], 0], cells[fill[b], 1], cells[fill[b], 2] = x, y, z
+                        fill[b] += 1
+    for b in range(buckets):
+        for i in range(start[b], start[b + 1]):
             f = entry[i]
-            for j in range(i + 1, start[c + 1]):
+            for j in range(i + 1, start[b + 1]):
                 g = entry[j]
                 if lo[g, 0] > hi[f, 0]:
                     break
-                if not _owns_pair(f, g, lo, hi, first, x, y, z):
+                if cells[j, 0] != cells[i, 0] or cells[j, 1] != cells[i, 1] or cells[j, 2] != cells[i, 2]:
+                    continue
+                if not _owns_pair(f, g, lo, hi, first, cells[i, 0], cells[i, 1], cells[i, 2]):
                     continue
                 if (out[f] and out[g]) or not _faces_cross(v, faces, f, g):
                     continue
+                out[f] = True
+                out[g] = True
+
+
+@compiled
+def _bucket(x: int, y: int, z: int, buckets: int) -> int:
+    h = (x * 73856093) ^ (y * 19349663) ^ (z * 83492791)
+    h ^= h >> 17
+    return h & (buckets - 1)
+
+
+@compiled
+def _large_pairs(v, faces, lo, hi, large, out) -> None:
+    """Each large face against every other face whose box its box meets (a pair of large faces once)."""
+    is_large = np.zeros(len(faces), np.bool_)
+    for f in large:
+        is_large[f] = True
+    for f in large:
+        for g in range(len(faces)):
+            if g == f or (is_large[g] and g < f):
+                continue
+            meet = True
+            for k in range(3):
+                if lo[f, k] > hi[g, k] or lo[g, k] > hi[f, k]:
+                    meet = False
+            if meet and not (out[f] and out[g]) and _faces_cross(v, faces, f, g):
                 out[f] = True
                 out[g] = True
 
@@ -129,9 +163,13 @@ def _owns_pair(f, g, lo, hi, first, x, y, z) -> bool:
 @compiled
 def _faces_cross(v, faces, f, g) -> bool:
     """Faces ``f`` and ``g`` cross by the module's rule (their common vertices decide the test)."""
+    p0, p1, p2 = v[faces[f, 0]], v[faces[f, 1]], v[faces[f, 2]]
+    q0, q1, q2 = v[faces[g, 0]], v[faces[g, 1]], v[faces[g, 2]]
+    if _no_area(p0, p1, p2) or _no_area(q0, q1, q2):
+        return False
     shared = 0
     sf, sg = -1, -1
-    for a in range(3):
+    for a in range(3):                                            # distinct indices: a face has area
         for b in range(3):
             if faces[f, a] == faces[g, b]:
                 shared += 1
@@ -140,8 +178,6 @@ def _faces_cross(v, faces, f, g) -> bool:
         return True
     if shared == 2:
         return False
-    p0, p1, p2 = v[faces[f, 0]], v[faces[f, 1]], v[faces[f, 2]]
-    q0, q1, q2 = v[faces[g, 0]], v[faces[g, 1]], v[faces[g, 2]]
     if shared == 0:
         return _triangles_meet(p0, p1, p2, q0, q1, q2)
     return _segment_meets(v[faces[f, (sf + 1) % 3]], v[faces[f, (sf + 2) % 3]], q0, q1, q2) or \
@@ -213,8 +249,11 @@ def _triangles_meet(v0, v1, v2, u0, u1, u2) -> bool:
         return _coplanar_meet(n1, v0, v1, v2, u0, u1, u2)
     xx, yy = x0 * x1, y0 * y1
     xxyy = xx * yy
-    s0, s1 = a * xxyy + b * x1 * yy, a * xxyy + c * x0 * yy
-    t0, t1 = d * xxyy + e * xx * y1, d * xxyy + f * xx * y0
+    if xxyy == 0.0 or not np.isfinite(xxyy):                      # products out of range: divide
+        s0, s1, t0, t1 = a + b / x0, a + c / x1, d + e / y0, d + f / y1
+    else:
+        s0, s1 = a * xxyy + b * x1 * yy, a * xxyy + c * x0 * yy
+        t0, t1 = d * xxyy + e * xx * y1, d * xxyy + f * xx * y0
     return not (max(s0, s1) < min(t0, t1) or max(t0, t1) < min(s0, s1))
 
 
@@ -240,6 +279,12 @@ def _normal(a, b, c):
     ux, uy, uz = _sub(b, a)
     wx, wy, wz = _sub(c, a)
     return _cross3(ux, uy, uz, wx, wy, wz)
+
+
+@compiled
+def _no_area(a, b, c) -> bool:
+    n = _normal(a, b, c)
+    return n[0] == 0.0 and n[1] == 0.0 and n[2] == 0.0
 
 
 @compiled

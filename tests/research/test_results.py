@@ -30,6 +30,10 @@ def test_the_joined_measures_are_those_of_all_shapes_at_once():
     assert j["chamfer_x1e3_category_mean"] == pytest.approx(3.0)                 # the splits' means would give 3.25
     assert (j["shapes"], j["empty_outputs"], len(j["per_shape"]), j["split"]) == (6, 1, 6, "test+val")
     assert j["octree"]["truth_nodes"] == pytest.approx((10 * 3 + 40 * 3) / 6)
+    a["watertight_crossing"] = 2                                    # counted in one split, not in the other
+    assert "watertight_crossing" not in join_results([a, b]) and "watertight_crossing" not in join_results([b, a])
+    b["watertight_crossing"] = 1
+    assert join_results([a, b])["watertight_crossing"] == 3
 
 
 def test_results_that_differ_or_overlap_are_not_joined():

@@ -100,6 +100,10 @@ def test_surfaces_compares_the_closed_mesh_with_the_patches_inside_each_result(t
     pa.write_text(json.dumps(a))
     assert main([str(pa), "--surfaces", "--bootstrap", "200"]) == 0
     assert "| 0 | 2 (6.2%) | 4 |" in capsys.readouterr().out.splitlines()[-1]    # 2 cross; median of 0, 0, .125, .25
+    del a["per_shape"][0]["watertight_crossing_share"]                         # a result joined with an older one
+    pa.write_text(json.dumps(a))
+    assert main([str(pa), "--surfaces", "--bootstrap", "200"]) == 0
+    assert "| 0 | 2 of 3 measured (12.5%) | 4 |" in capsys.readouterr().out.splitlines()[-1]
     plain = results({"car": [1.0]})
     pa.write_text(json.dumps(plain))
     assert main([str(pa), "--surfaces"]) == 2
