@@ -35,11 +35,13 @@ def crossing_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     if len(faces) < 2:
         return out
     v = np.asarray(vertices, dtype=np.float64)
-    if not np.isfinite(v[faces]).all():
+    corners = v[faces]
+    if not np.isfinite(corners).all():
         raise ValueError("crossing_faces needs finite vertex positions")
-    top = float(np.abs(v[faces]).max())
-    v = np.ascontiguousarray(v * 2.0 ** -np.frexp(top)[1] if top > 0 else v)   # exact: |x| < 1, no overflow
-    lo, hi = _boxes(v, faces)
+    top = float(np.abs(corners).max())
+    scale = 2.0 ** -np.frexp(top)[1] if top > 0 else 1.0          # exact: |x| < 1, no overflow
+    v = np.ascontiguousarray(v * scale)
+    lo, hi = corners.min(1) * scale, corners.max(1) * scale      # each face's box (scaled exactly)
     cell = max(2.0 * float(np.median(np.max(hi - lo, axis=1))), 2.0 ** -40)
     while True:                                                   # a few large faces are tested on their own
         first, last = np.floor(lo / cell).astype(np.int64), np.floor(hi / cell).astype(np.int64)
@@ -58,18 +60,6 @@ LARGE = 4
 every face whose box it meets, not through the grid (so a few huge faces do not fill it)."""
 LARGE_FACES = 64
 """The most such faces (or the square root of the face count) before the grid is made coarser."""
-
-
-@compiled
-def _boxes(v: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    lo = np.empty((len(faces), 3))
-    hi = np.empty((len(faces), 3))
-    for f in range(len(faces)):
-        for k in range(3):
-            a, b, c = v[faces[f, 0], k], v[faces[f, 1], k], v[faces[f, 2], k]
-            lo[f, k] = min(a, min(b, c))
-            hi[f, k] = max(a, max(b, c))
-    return lo, hi
 
 
 @compiled
@@ -165,7 +155,8 @@ def _faces_cross(v, faces, f, g) -> bool:
     """Faces ``f`` and ``g`` cross by the module's rule (their common vertices decide the test)."""
     p0, p1, p2 = v[faces[f, 0]], v[faces[f, 1]], v[faces[f, 2]]
     q0, q1, q2 = v[faces[g, 0]], v[faces[g, 1]], v[faces[g, 2]]
-    if _no_area(p0, p1, p2) or _no_area(q0, q1, q2):
+    n1, n2 = _normal(p0, p1, p2), _normal(q0, q1, q2)
+    if _is_zero(n1) or _is_zero(n2):                              # no area: never counts
         return False
     shared = 0
     sf, sg = -1, -1
@@ -179,7 +170,7 @@ def _faces_cross(v, faces, f, g) -> bool:
     if shared == 2:
         return False
     if shared == 0:
-        return _triangles_meet(p0, p1, p2, q0, q1, q2)
+        return _triangles_meet(p0, p1, p2, n1, q0, q1, q2, n2)
     return _segment_meets(v[faces[f, (sf + 1) % 3]], v[faces[f, (sf + 2) % 3]], q0, q1, q2) or \
         _segment_meets(v[faces[g, (sg + 1) % 3]], v[faces[g, (sg + 2) % 3]], p0, p1, p2)
 
@@ -218,15 +209,10 @@ def _segment_meets(s0, s1, a, b, c) -> bool:
 
 
 @compiled
-def _triangles_meet(v0, v1, v2, u0, u1, u2) -> bool:
-    """Triangles ``v`` and ``u`` share a point (Moeller, "A fast triangle-triangle intersection
-    test", 1997, without divisions; coplanar triangles tested in their plane)."""
-    n1 = _normal(v0, v1, v2)
-    if n1[0] == 0.0 and n1[1] == 0.0 and n1[2] == 0.0:
-        return False
-    n2 = _normal(u0, u1, u2)
-    if n2[0] == 0.0 and n2[1] == 0.0 and n2[2] == 0.0:
-        return False
+def _triangles_meet(v0, v1, v2, n1, u0, u1, u2, n2) -> bool:
+    """Triangles ``v`` and ``u``, with area and normals ``n1`` and ``n2`` (:func:`_normal`), share a
+    point (Moeller, "A fast triangle-triangle intersection test", 1997, without divisions;
+    coplanar triangles tested in their plane)."""
     d1 = -_dot(n1, v0)
     du0, du1, du2 = _dot(n1, u0) + d1, _dot(n1, u1) + d1, _dot(n1, u2) + d1
     if du0 * du1 > 0.0 and du0 * du2 > 0.0:
@@ -282,8 +268,7 @@ def _normal(a, b, c):
 
 
 @compiled
-def _no_area(a, b, c) -> bool:
-    n = _normal(a, b, c)
+def _is_zero(n) -> bool:
     return n[0] == 0.0 and n[1] == 0.0 and n[2] == 0.0
 
 
