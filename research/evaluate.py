@@ -370,7 +370,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if results["task"] == "foreground":
         print(f"{args.out}: {results['shapes']} photos, mask IoU category mean {results['mask_iou_category_mean']:.4f} "
-              f"(median {results['mask_iou_median']:.4f}; above 0.9: {results['mask_iou_above_0.9']:.1%})")
+              f"(median {results['mask_iou_median']:.4f}; above 0.9: {results['mask_iou_above_0.9']:.1%}), "
+              f"thin-part recall category mean {results['thin_recall_category_mean']:.4f}"
+              f"{' (with the refinement network)' if results['refined'] else ''}")
         return 0
     mean = results["chamfer_x1e3_category_mean"]
     text = f"{args.out}: {results['shapes']} shapes, Chamfer x1e3 category mean "

@@ -32,8 +32,9 @@ from model.data.shapes import stable_hash
 from model.files import json_text, write_atomic
 from model.image.mask import MaskSpec, NoObjectError, mask_bounds, mask_iou, object_mask, object_square, resize_mask
 from model.train.data import RecordSet
-from model.train.foreground import REFINE_STYLE, thin_parts
+from model.train.foreground import REFINE_STYLE
 
+from .masks import thin_recall
 from .results import category_means
 
 
@@ -97,9 +98,8 @@ def measure(photos: list[tuple[str, Photo]], method: Callable[[np.ndarray], np.n
         except NoObjectError:
             ours, lost = np.zeros_like(truth), lost + 1
         seconds.append(time.perf_counter() - t)
-        thin = thin_parts(photo.mask[None, None].astype(np.float32), [photo.box])[0, 0] > 0
         ious.append(mask_iou(ours, truth))
-        recalls.append(float((ours & thin).sum() / max(1, thin.sum())))
+        recalls.append(thin_recall(ours, photo))
         cats.append(category)
     per_cat = category_means(cats, ious)
     return {"photos": len(photos), "mask_iou_category_mean": float(np.mean(list(per_cat.values()))),

@@ -148,15 +148,17 @@ def paired_difference(base: dict, other: dict, draws: int = 10_000, seed: int = 
 
 
 def mask_table(results: list[dict], labels: list[str]) -> str:
-    """Foreground results: per-category mask IoU, the category mean, the median and the share of
-    photos above 0.9, one row per result."""
+    """Foreground results: per-category mask IoU, the category mean, the median, the share of
+    photos above 0.9 and the thin parts' recall (category mean; — for results without it), one
+    row per result."""
     cats = sorted({row["category"] for r in results for row in r["per_shape"]})
-    lines = ["| run | " + " | ".join(cats) + " | **mean** | median | above 0.9 | photos |",
-             "|---|" + "---|" * (len(cats) + 4)]
+    lines = ["| run | " + " | ".join(cats) + " | **mean** | median | above 0.9 | thin-part recall | photos |",
+             "|---|" + "---|" * (len(cats) + 5)]
     for label, r in zip(labels, results):
         cells = [f"{r['mask_iou'][c]:.3f}" if finite(r["mask_iou"].get(c)) else "—" for c in cats]
+        thin = f"{r['thin_recall_category_mean']:.3f}" if finite(r.get("thin_recall_category_mean")) else "—"
         lines.append(f"| {label} | " + " | ".join(cells) + f" | **{r['mask_iou_category_mean']:.3f}** | "
-                     f"{r['mask_iou_median']:.3f} | {r['mask_iou_above_0.9']:.0%} | {r['shapes']} |")
+                     f"{r['mask_iou_median']:.3f} | {r['mask_iou_above_0.9']:.0%} | {thin} | {r['shapes']} |")
     return "\n".join(lines)
 
 

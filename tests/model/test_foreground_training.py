@@ -535,6 +535,21 @@ def test_the_refinement_network_goes_into_the_bundle_and_the_framing_uses_it(tin
                           refine=lambda crop: looks.append(crop.shape) or rt.refine(crop))
     assert looks == [(4, 64, 64)] and framed.mask_source == "network"
     assert export_main(["--verify", str(tmp_path / "b")]) == 0
+    # the photo evaluation of the foreground network through this bundle looks again through it
+    import dataclasses
+
+    from model.data.photos import photo_split_view
+    from model.train.tasks import TASKS
+    from research.evaluate import EvalOptions, evaluate
+    from research.masks import photo_masks, thin_recall
+    res = evaluate(str(runs / "fg"), str(tiny_data), EvalOptions("train", limit=3, bundle=str(tmp_path / "b")))
+    cfg = dataclasses.replace(load_model(runs / "fg").config, data=str(tiny_data))
+    photos = [photo_split_view(s.images, s.shape_id) for s in TASKS["foreground"].dataset(cfg, "train", 0, limit=3).samples]
+    recalls = [thin_recall(m, p) for m, p in zip(photo_masks(photos, rt.segment, spec, rt.refine), photos)]
+    assert res["refined"] and [r["thin_recall"] for r in res["per_shape"]] == recalls
+    assert res["thin_recall_mean"] == pytest.approx(np.mean(recalls))
+    plain = evaluate(str(runs / "fg"), str(tiny_data), EvalOptions("train", limit=3))
+    assert not plain["refined"] and all(0 <= r["thin_recall"] <= 1 for r in plain["per_shape"])
     with pytest.raises(BundleError, match="--refine goes with --foreground"):
         export(runs / "img", tmp_path / "c", refine=tmp_path / "r")
     with pytest.raises(BundleError, match="not a refinement network"):

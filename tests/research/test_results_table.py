@@ -133,7 +133,7 @@ def test_foreground_results_are_compared_by_mask_iou_where_higher_wins(tmp_path,
     pb.write_text(json.dumps(other))
     assert main([str(pa), str(pb), "--bootstrap", "200"]) == 0
     out = capsys.readouterr().out
-    assert "| a | 0.750 | 0.200 | **0.475** | 0.650 | 25% | 4 |" in out
+    assert "| a | 0.750 | 0.200 | **0.475** | 0.650 | 25% | — | 4 |" in out
     assert "mask IoU category mean" in out and "| b | +0.227 |" in out and "| 1 / 2 / 1 | 4 |" in out
     assert main([str(pa), str(pb), "--icp"]) == 2
     assert "not the foreground network's masks" in capsys.readouterr().err
