@@ -125,6 +125,7 @@ def mask_results(values: dict[str, list[float]]) -> dict:
 def test_foreground_results_are_compared_by_mask_iou_where_higher_wins(tmp_path, capsys):
     base = mask_results({"chair": [0.5, 0.95, 0.8], "lamp": [0.2]})
     other = mask_results({"chair": [0.7, 0.91, 0.8], "lamp": [0.6]})      # better, worse, equal; better
+    other["thin_recall_category_mean"] = 0.8125                              # measured for b only
     d = paired_difference(base, other, draws=200, metric="mask_iou", higher_is_better=True)
     assert d.mean == pytest.approx(((0.2 - 0.04) / 3 + 0.4) / 2)
     assert (d.base_wins, d.other_wins, d.ties, d.shapes) == (1, 2, 1, 4)
@@ -134,6 +135,7 @@ def test_foreground_results_are_compared_by_mask_iou_where_higher_wins(tmp_path,
     assert main([str(pa), str(pb), "--bootstrap", "200"]) == 0
     out = capsys.readouterr().out
     assert "| a | 0.750 | 0.200 | **0.475** | 0.650 | 25% | — | 4 |" in out
+    assert "| b | 0.803 | 0.600 | **0.702** | 0.750 | 25% | 0.812 | 4 |" in out
     assert "mask IoU category mean" in out and "| b | +0.227 |" in out and "| 1 / 2 / 1 | 4 |" in out
     assert main([str(pa), str(pb), "--icp"]) == 2
     assert "not the foreground network's masks" in capsys.readouterr().err
