@@ -14,7 +14,9 @@ Real meshes (``--meshes``: a folder holding the research meshes named below; ski
 each rendered from ``--views`` viewpoints, composited as a photo on the held-out backgrounds,
 reconstructed through the same path, and the output classified by the classification bundle
 (``--classifier``; its 12-rotation vote, the service's ``vote=true``): a reconstruction counts as
-its category when the classifier, which never saw the photo, names that category.
+its category when the classifier, which never saw the photo, names that category.  Each photo is
+also sent with a box prompt (the object's box as a user drags it, :func:`box_prompt`) and with
+its exact mask as alpha (what a perfect foreground network would give).
 
     python -m bench.photos --bundle models/bundles/image-to-shape --data data/procedural
         [--meshes ../shared/meshes] [--classifier models/bundles/classify] [--figure photos.png] [--phone 8]
@@ -34,7 +36,7 @@ from PIL import Image
 
 from model.cli import command_parser
 from model.image.decode import WORK_SIDE_DEFAULT
-from model.image.mask import mask_iou
+from model.image.mask import mask_bounds, mask_iou
 
 REAL_MESHES = {
     # file: (category, up axis of the file): ModelNet40 is z-up, ShapeNet y-up
@@ -55,11 +57,15 @@ class Reconstruction:
 
 
 def reconstruct(data: bytes, runtime, remove_background: str = "auto",
-                work_side: int | None = WORK_SIDE_DEFAULT) -> Reconstruction:
+                work_side: int | None = WORK_SIDE_DEFAULT, box: tuple[int, int, int, int] | None = None
+                ) -> Reconstruction:
     """The image endpoint's work on an uploaded photo (bytes), stage by stage, timed; ``work_side``
-    as :func:`model.image.decode.decode_photo` (None: the photo at full size, as before it existed)."""
+    as :func:`model.image.decode.decode_photo` (None: the photo at full size, as before it existed);
+    ``box``: the user's box prompt, left, top, right, bottom in the upload's pixels (the service's
+    ``box=``)."""
     from model.decode import DECODED_NORMALIZATION
     from model.image.decode import decode_photo
+    from model.image.frame import region_of
     from model.image.mask import MaskSpec
     from model.surface import surface_mesh
     from model.train.images import frame_or_whole
@@ -67,10 +73,12 @@ def reconstruct(data: bytes, runtime, remove_background: str = "auto",
 
     spec = runtime.bundle.image_spec()
     t0 = time.perf_counter()
-    rgba = decode_photo(data, work_side=work_side).rgba
+    decoded = decode_photo(data, work_side=work_side)
+    rgba = decoded.rgba
     t1 = time.perf_counter()
     segment = runtime.segment if runtime.has_foreground else None
-    framed = frame_or_whole(rgba, spec, segment, remove_background, runtime.bundle.mask_spec() or MaskSpec())
+    region = None if box is None else region_of(box, decoded.size, rgba.shape[:2])
+    framed = frame_or_whole(rgba, spec, segment, remove_background, runtime.bundle.mask_spec() or MaskSpec(), region)
     t2 = time.perf_counter()
     latent = runtime.encode_image(framed.image[None])
     t3 = time.perf_counter()
@@ -87,6 +95,28 @@ def jpeg(rgb: np.ndarray, quality: int = 90) -> bytes:
     buf = io.BytesIO()
     Image.fromarray(rgb).save(buf, "JPEG", quality=quality)
     return buf.getvalue()
+
+
+def png_with_alpha(rgb: np.ndarray, mask: np.ndarray) -> bytes:
+    """A PNG of the photo with its exact mask (coverage in [0, 1]) as alpha: what a perfect
+    foreground network would give."""
+    alpha = np.clip(np.round(mask * 255), 0, 255).astype(np.uint8)
+    buf = io.BytesIO()
+    Image.fromarray(np.dstack([rgb, alpha]), "RGBA").save(buf, "PNG")
+    return buf.getvalue()
+
+
+PROMPT_MARGIN = 0.05
+"""A box prompt as a user drags it: the object's box grown by this share of its longest side on
+each side (not pixel-exact), clipped to the photo."""
+
+
+def box_prompt(mask: np.ndarray) -> tuple[int, int, int, int]:
+    """The box prompt (left, top, right, bottom) about the object of an exact mask (H, W)."""
+    top, left, bottom, right = mask_bounds(mask > 0.5)
+    grow = int(round(PROMPT_MARGIN * max(bottom - top, right - left)))
+    h, w = mask.shape
+    return max(0, left - grow), max(0, top - grow), min(w, right + grow), min(h, bottom + grow)
 
 
 def test_rows(data: str, shapes: int) -> list[tuple[dict, np.ndarray]]:
@@ -305,18 +335,27 @@ def main(argv: list[str] | None = None) -> int:
     if args.meshes and Path(args.meshes).is_dir():
         classifier = Runtime(load_bundle(args.classifier), threads=args.threads)
         real = real_mesh_photos(Path(args.meshes), args.views)
-        print("\n| real mesh, view | category | mask IoU | classified as (voted probability) |")
-        print("|---|---|---|---|")
-        hits = 0
+        print("\n| real mesh, view | category | mask IoU | classified as (voted probability) "
+              "| with a box prompt: mask IoU | classified as | with the exact mask: classified as |")
+        print("|---|---|---|---|---|---|---|")
+        hits = {"photo": 0, "box prompt": 0, "exact mask": 0}
         for category, name, rgb, truth in real:
-            r = reconstruct(jpeg(rgb), runtime)
-            ours = r.framed.mask > 127 if r.framed.mask is not None else np.zeros(truth.shape, bool)
-            iou = mask_iou(ours, truth > 0.5)
-            label, p = classify_output(classifier, r.octree, classifier.bundle.octree.depth)
-            hits += label == category
-            print(f"| {name} | {category} | {iou:.3f} | {label} ({p:.2f}) |")
-            shown.append((category, rgb, r.framed, r.octree))
-        print(f"recognised as their category: {hits} of {len(real)}")
+            cells = []
+            for way, r in (("photo", reconstruct(jpeg(rgb), runtime)),
+                           ("box prompt", reconstruct(jpeg(rgb), runtime, box=box_prompt(truth))),
+                           ("exact mask", reconstruct(png_with_alpha(rgb, truth), runtime))):
+                if way != "exact mask":
+                    ours = r.framed.mask > 127 if r.framed.mask is not None else np.zeros(truth.shape, bool)
+                    cells.append(f"{mask_iou(ours, truth > 0.5):.3f}")
+                label, p = classify_output(classifier, r.octree, classifier.bundle.octree.depth)
+                hits[way] += label == category
+                cells.append(f"{label} ({p:.2f})")
+                if way == "photo":
+                    shown.append((category, rgb, r.framed, r.octree))
+            print(f"| {name} | {category} | " + " | ".join(cells) + " |")
+        print("recognised as their category: " + "; ".join(f"{n} of {len(real)} {way}" if way == "photo" else
+                                                          f"{n} with a {way}" if way == "box prompt" else
+                                                          f"{n} with the {way}" for way, n in hits.items()))
     if args.figure:
         rows = []
         for c, rgb, framed, octree in shown:

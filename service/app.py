@@ -25,6 +25,9 @@ Errors are JSON: `{"error": {"code", "message", "hint"}}`.
 
 **Changelog**
 
+- 2026-11-29: with `box=`, the foreground network sees the box with half its longest side of
+  the photo about it, and the mask is then kept inside the box: a box drawn tightly around the
+  object no longer loses it (validation photos: mask IoU 0.93 with a box, 0.87 before).
 - 2026-11-28: `POST /v1/image-to-shape` takes `box=left,top,right,bottom` (x0,y0,x1,y1, the
   uploaded image's pixels): the object is looked for inside it. **`X-Crop-Box` is now
   left,top,right,bottom** (x0,y0,x1,y1), the order boxes come in; it was top,left,bottom,right.

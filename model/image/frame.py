@@ -12,7 +12,7 @@ import numpy as np
 from PIL import Image
 
 from .decode import MAX_PIXELS_DEFAULT, ImageError, decode_image
-from .mask import MaskSpec, NoObjectError, mask_bounds, mask_confidence, object_mask, spec_from_dict
+from .mask import MaskSpec, NoObjectError, clean_mask, mask_bounds, mask_confidence, object_mask, spec_from_dict
 
 
 @dataclass(frozen=True)
@@ -262,15 +262,30 @@ def _frame_alpha(rgba: np.ndarray, spec: ImageSpec, foreground_ratio: float | No
                   rgba[..., 3].copy(), rgba.shape[:2])
 
 
+BOX_CONTEXT = 0.5
+"""A box prompt is segmented with this share of its longest side around it (clipped to the
+image), then the mask is kept inside the box only: the foreground network was trained on objects
+with background about them, and a box drawn tightly around the object, segmented alone, loses
+it (validation photos with a box 5% larger than the object: mask IoU 0.873 segmenting the box
+alone, 0.905 without a box, 0.927 with this context; with a box drawn exactly at the object,
+0.815 alone and 0.931 with it; chosen among 0.25, 0.5, 0.75 and 1 with boxes 0–20% larger than
+the object, docs/journal/2026-11-29.md)."""
+
+
 def _network_mask(rgb: np.ndarray, segment, spec: MaskSpec, refine, region: tuple[int, int, int, int] | None
                   ) -> np.ndarray:
-    """The network's mask of ``rgb`` (:func:`object_mask`), or of ``region`` alone, placed in an
-    image-sized mask (NoObjectError saying that the box holds no object)."""
+    """The network's mask of ``rgb`` (:func:`object_mask`), or inside ``region`` only (segmented
+    with :data:`BOX_CONTEXT` around it), placed in an image-sized mask (NoObjectError saying that
+    the box holds no object)."""
     if region is None:
         return object_mask(rgb, segment, spec, refine)
     top, left, bottom, right = region
+    grow = int(round(BOX_CONTEXT * max(bottom - top, right - left)))
+    y0, x0 = max(0, top - grow), max(0, left - grow)
+    y1, x1 = min(rgb.shape[0], bottom + grow), min(rgb.shape[1], right + grow)
     try:
-        part = object_mask(np.ascontiguousarray(rgb[top:bottom, left:right]), segment, spec, refine)
+        seen = object_mask(np.ascontiguousarray(rgb[y0:y1, x0:x1]), segment, spec, refine)
+        part = clean_mask(seen[top - y0:bottom - y0, left - x0:right - x0], spec)
     except NoObjectError as exc:
         raise NoObjectError(f"the box holds no object ({exc}); draw the box around the object") from None
     mask = np.zeros(rgb.shape[:2], np.float32)

@@ -86,13 +86,14 @@ def photo_input(rgba: np.ndarray, spec: ImageSpec, rng: np.random.Generator) -> 
 
 
 def frame_or_whole(rgb: np.ndarray, spec: ImageSpec, segment=None, remove_background: str = "auto",
-                   mask_spec: MaskSpec = MaskSpec()) -> Framed:
-    """:func:`frame_object`, or where it finds no object (the service answers 422 there) the photo
-    framed without a mask, its ``mask_source`` "missed": how evaluations and benchmarks go on."""
+                   mask_spec: MaskSpec = MaskSpec(), region: tuple[int, int, int, int] | None = None) -> Framed:
+    """:func:`frame_object` (``region``: a box prompt, top, left, bottom, right), or where it finds
+    no object (the service answers 422 there) the photo framed without a mask (the region its
+    crop), its ``mask_source`` "missed": how evaluations and benchmarks go on."""
     try:
-        return frame_object(rgb, spec, segment, remove_background, mask_spec=mask_spec)
+        return frame_object(rgb, spec, segment, remove_background, mask_spec=mask_spec, region=region)
     except NoObjectError:
-        framed = frame_object(rgb, spec, None, "false")
+        framed = frame_object(rgb, spec, None, "false", region=region)
         framed.mask_source = "missed"
         return framed
 

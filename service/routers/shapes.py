@@ -67,7 +67,8 @@ UP_Q = Query("y", description="the upload's up axis: y (the models' convention, 
              "standing on +Y, and a completed shape is turned back, so it comes in the upload's coordinates")
 BOX_Q = Query(None, pattern=r"^-?\d+,-?\d+,-?\d+,-?\d+$", examples=["120,80,520,400"],
               description="where the object is: left,top,right,bottom (x0,y0,x1,y1) in the uploaded image's pixels, "
-                          "as PIL and SAM-style tools write boxes; the object's mask is searched inside it only (a "
+                          "as PIL and SAM-style tools write boxes; the object's mask is searched inside it only (the "
+                          "network sees it with some of the photo about it; a "
                           "box partly beyond the image is clipped; 422 invalid_box for one outside it, no_object "
                           "for one that holds no object); with remove_background=false the box is the crop")
 DEBUG_Q = Query(None, description="mask: answer with the mask the framing used (an 8-bit greyscale PNG of the "

@@ -315,8 +315,8 @@ def test_a_large_photo_is_worked_on_reduced_and_answered_in_its_own_pixels(fg_cl
 
 def test_a_box_prompt_looks_for_the_object_inside_it_only(fg_client, segment_calls):
     """box=left,top,right,bottom: the mask is the object inside the box (a second object outside
-    it is not taken), X-Crop-Box says the object's box in the same order, and the mask's
-    confidence is reported."""
+    it is not taken, though the network sees the box with some context about it), X-Crop-Box says
+    the object's box in the same order, and the mask's confidence is reported."""
     img, mask = scene(160, 240, box=(40, 30, 110, 100))
     second, other = scene(160, 240, box=(50, 150, 120, 220), seed=1)
     img[other] = second[other]                                 # another object to the right
@@ -326,7 +326,9 @@ def test_a_box_prompt_looks_for_the_object_inside_it_only(fg_client, segment_cal
     assert got[other].mean() == 0 and got[mask].mean() > 0.95
     assert np.abs(np.subtract(crop_box(r), true_box(mask))).max() <= 2
     assert 0 <= float(r.headers["x-mask-confidence"]) <= 1
-    assert segment_calls[0].shape[:2] == (130 - 20, 120 - 20)  # the box (rows, columns), not the photo
+    # the network sees the box with half its longest side (110) about it, clipped to the photo: rows 0-160,
+    # columns 0-175, so part of the second object too, which the mask still leaves out
+    assert segment_calls[0].shape[:2] == (160, 20 + 100 + 55)
     whole = post(fg_client, png(img), debug="mask")             # without the box: both objects
     both = np.asarray(Image.open(io.BytesIO(whole.content))) > 127
     assert both[other].mean() > 0.95
