@@ -35,8 +35,9 @@ import trimesh
 from PIL import Image
 
 from model.cli import command_parser
+from model.data.photos import box_prompt
 from model.image.decode import WORK_SIDE_DEFAULT
-from model.image.mask import mask_bounds, mask_iou
+from model.image.mask import mask_iou
 
 REAL_MESHES = {
     # file: (category, up axis of the file): ModelNet40 is z-up, ShapeNet y-up
@@ -104,19 +105,6 @@ def png_with_alpha(rgb: np.ndarray, mask: np.ndarray) -> bytes:
     buf = io.BytesIO()
     Image.fromarray(np.dstack([rgb, alpha]), "RGBA").save(buf, "PNG")
     return buf.getvalue()
-
-
-PROMPT_MARGIN = 0.05
-"""A box prompt as a user drags it: the object's box grown by this share of its longest side on
-each side (not pixel-exact), clipped to the photo."""
-
-
-def box_prompt(mask: np.ndarray) -> tuple[int, int, int, int]:
-    """The box prompt (left, top, right, bottom) about the object of an exact mask (H, W)."""
-    top, left, bottom, right = mask_bounds(mask > 0.5)
-    grow = int(round(PROMPT_MARGIN * max(bottom - top, right - left)))
-    h, w = mask.shape
-    return max(0, left - grow), max(0, top - grow), min(w, right + grow), min(h, bottom + grow)
 
 
 def test_rows(data: str, shapes: int) -> list[tuple[dict, np.ndarray]]:

@@ -3,7 +3,7 @@
     python -m research.evaluate RUN --data DIR [--split test] --out results.json [--mesh-dir DIR]
                              [--resolution 128] [--limit N] [--per-category N] [--oracle structure|all] [--icp]
                              [--bundle BUNDLE_DIR]
-                             [--photos [--remove-background auto|true|false] [--foreground FG | --exact-masks]]
+                             [--photos [--remove-background auto|true|false] [--foreground FG | --exact-masks] [--box-prompt]]
 
 Each shape is encoded (its octree for an autoencoder, a fixed view of its renders for an image
 model), decoded (octrees grow through the shared decode loop), its leaf patches sampled at one
@@ -77,7 +77,8 @@ class EvalOptions:
     service's parameter), and the mask's IoU with the exact one is reported; without a bundle,
     ``foreground`` (a foreground network's checkpoint or run, in torch) removes the backgrounds, as
     the bundle it would be exported into would; ``exact_masks`` (a diagnostic) sends each photo
-    with its exact mask as alpha instead.  ``keep_scan``: completion outputs keep the scan's own
+    with its exact mask as alpha instead; ``box_prompts``: each photo with a box prompt about its
+    object, as a user drags one (the service's ``box=``).  ``keep_scan``: completion outputs keep the scan's own
     patches where it saw the shape (the service's ``keep_scan``).  ``symmetry``: completion inputs
     are read with their mirror image where its plane has at least this support (the service's
     ``symmetry``).  ``per_category``: only the first so many shapes of each category (of the
@@ -99,6 +100,7 @@ class EvalOptions:
     remove_background: str = "auto"
     foreground: str | None = None
     exact_masks: bool = False
+    box_prompts: bool = False
     keep_scan: bool = False
     symmetry: float | None = None
 
@@ -113,6 +115,7 @@ class EvalOptions:
              "--foreground goes with --photos and no --bundle (a bundle brings its own foreground network)"),
             (self.exact_masks and (not self.photos or self.foreground is not None),
              "--exact-masks goes with --photos and takes the place of a foreground network (no --foreground)"),
+            (self.box_prompts and not self.photos, "--box-prompt goes with --photos"),
             (self.keep_scan and task != "completion", "--keep-scan goes with a completion model"),
             (self.symmetry is not None and task != "completion", "--symmetry goes with a completion model"),
             (self.per_category is not None and (task in ("classify", "foreground") or self.per_category < 1),
@@ -204,7 +207,7 @@ class _ShapeEvaluation:
         rt = self.runtime
         if self.o.photos:
             images, framing = photo_batch(samples, self.task.spec(self.cfg), self.segment, self.o.remove_background,
-                                          self.mask_spec, self.o.exact_masks)
+                                          self.mask_spec, self.o.exact_masks, self.o.box_prompts)
             with torch.no_grad():
                 latent = (torch.from_numpy(rt.encode_image(images)) if rt is not None
                           else self.model.encoder(torch.from_numpy(images)))
@@ -280,6 +283,7 @@ class _ShapeEvaluation:
             results["input"] = {"kind": "photos", "remove_background": o.remove_background,
                                 "foreground_network": self.segment is not None and not o.exact_masks,
                                 "foreground": o.foreground, "exact_masks": o.exact_masks,
+                                "box_prompts": o.box_prompts,
                                 "mask_sources": {k: sources.count(k) for k in sorted(set(sources))}}
         if self.surfaces:
             results["watertight_not_closed"] = sum(1 for r in per_shape if r.get("watertight_closed") is False)
@@ -339,6 +343,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--exact-masks", action="store_true",
                     help="diagnostic, with --photos: send each photo with its exact mask as alpha (what a perfect "
                          "foreground network would give) instead of removing its background")
+    ap.add_argument("--box-prompt", action="store_true",
+                    help="with --photos: send each photo with a box prompt about its object (the object's box 5%% "
+                         "larger, as a user drags one; the service's box=)")
     ap.add_argument("--normals", choices=("given", "estimated"), default="given",
                     help="completion: build the partial scans' octrees with the scanner's normals (default) "
                          "or with normals estimated from the points")
@@ -357,7 +364,8 @@ def main(argv: list[str] | None = None) -> int:
         options = EvalOptions(args.split, args.resolution, args.limit, args.per_category, args.mesh_dir, args.surface,
                               oracle=args.oracle, align=args.icp, bundle=args.bundle, normals=args.normals,
                               photos=args.photos, remove_background=args.remove_background,
-                              foreground=args.foreground, exact_masks=args.exact_masks, keep_scan=args.keep_scan,
+                              foreground=args.foreground, exact_masks=args.exact_masks, box_prompts=args.box_prompt,
+                              keep_scan=args.keep_scan,
                               symmetry=MIN_SUPPORT if args.symmetry else None)
         results = evaluate(args.run, args.data, options)
     except (ValueError, FileNotFoundError) as exc:

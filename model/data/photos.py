@@ -380,6 +380,24 @@ def generated_photos(per_category: int = 2, views: int = 2, seed: int = 0,
     return photos
 
 
+PROMPT_MARGIN = 0.05
+"""A box prompt as a user drags it: the object's box grown by this share of its longest side on
+each side (not pixel-exact), clipped to the photo."""
+
+
+def box_prompt(mask: np.ndarray, margin: float = PROMPT_MARGIN) -> tuple[int, int, int, int] | None:
+    """The box prompt (left, top, right, bottom: the service's ``box=``) about the object of an
+    exact mask (H, W) (coverage above 0.5), grown by ``margin`` of its longest side and clipped to
+    the photo; None when the object is not in the photo."""
+    box = mask_bounds(mask > 0.5)
+    if box is None:
+        return None
+    top, left, bottom, right = box
+    grow = int(round(margin * max(bottom - top, right - left)))
+    h, w = mask.shape
+    return max(0, left - grow), max(0, top - grow), min(w, right + grow), min(h, bottom + grow)
+
+
 ENCODER_STYLE = PhotoStyle(scale=(0.35, 0.95), short_side=(200, 320))
 """The composites the image model trains on: objects large enough that the crop keeps detail."""
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..data.photos import ENCODER_STYLE, imperfect_mask, photo_composite, photo_split_view
+from ..data.photos import ENCODER_STYLE, box_prompt, imperfect_mask, photo_composite, photo_split_view
 from ..data.render import composite
 from ..data.shapes import stable_hash
 from ..image.frame import Framed, ImageSpec, frame_object, prepare_image
@@ -99,13 +99,16 @@ def frame_or_whole(rgb: np.ndarray, spec: ImageSpec, segment=None, remove_backgr
 
 
 def photo_batch(samples: list[Sample], spec: ImageSpec, segment=None, remove_background: str = "auto",
-                mask_spec: MaskSpec = MaskSpec(), exact_masks: bool = False) -> tuple[np.ndarray, list[dict]]:
+                mask_spec: MaskSpec = MaskSpec(), exact_masks: bool = False, box_prompts: bool = False
+                ) -> tuple[np.ndarray, list[dict]]:
     """Encoder inputs (B, 3, S, S) of each shape's fixed photo-like test view
     (:func:`photo_split_view`) through :func:`frame_or_whole` with ``segment`` (the foreground
     network, or None), and per shape what was done: the mask's source, its IoU with the exact
     mask (None without a mask, 0 when the network found nothing), the crop box.
     ``exact_masks``: a diagnostic, each photo sent with its exact mask as its alpha channel (what a
-    perfect foreground network would give; the mask's source is then "alpha")."""
+    perfect foreground network would give; the mask's source is then "alpha").  ``box_prompts``:
+    each photo sent with a box prompt about its object, as a user drags one
+    (:func:`model.data.photos.box_prompt`)."""
     out = np.empty((len(samples), 3, spec.size, spec.size), np.float32)
     info = []
     for i, s in enumerate(samples):
@@ -113,7 +116,9 @@ def photo_batch(samples: list[Sample], spec: ImageSpec, segment=None, remove_bac
         image = photo.rgb
         if exact_masks:
             image = np.dstack([photo.rgb, np.round(np.clip(photo.mask, 0, 1) * 255).astype(np.uint8)])
-        framed = frame_or_whole(image, spec, segment, remove_background, mask_spec)
+        box = box_prompt(photo.mask) if box_prompts else None
+        region = None if box is None else (box[1], box[0], box[3], box[2])          # top, left, bottom, right
+        framed = frame_or_whole(image, spec, segment, remove_background, mask_spec, region)
         out[i] = framed.image
         iou = None
         if framed.mask is not None:

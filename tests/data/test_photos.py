@@ -11,6 +11,7 @@ from model.data.photos import (
     TEST_PHOTOS,
     TRAIN_PHOTOS,
     PhotoStyle,
+    box_prompt,
     imperfect_mask,
     mask_box,
     object_crop,
@@ -172,3 +173,14 @@ def test_the_shadow_blur_about_its_support_is_the_whole_images_blur_to_the_bit()
         sigma = float(rng.uniform(0.5, 25)) if k % 3 else float(rng.uniform(0.01, 0.5))
         assert np.array_equal(_blur_support(a, sigma), ndimage.gaussian_filter(a, sigma))
     assert not _blur_support(np.zeros((5, 7), np.float32), 3.0).any()
+
+
+def test_a_box_prompt_is_the_objects_box_a_little_larger_clipped_to_the_photo():
+    m = np.zeros((100, 200), np.float32)
+    m[20:60, 50:130] = 1                                 # 40 rows x 80 columns: grown by 4 pixels
+    assert box_prompt(m) == (46, 16, 134, 64)            # left, top, right, bottom (the service's box=)
+    assert box_prompt(m, margin=0.0) == (50, 20, 130, 60)
+    m[:] = 0
+    m[0:30, 180:200] = 0.8                               # against the corner: clipped
+    assert box_prompt(m, margin=0.5) == (165, 0, 200, 45)
+    assert box_prompt(np.full((10, 10), 0.4, np.float32)) is None      # no pixel above half coverage

@@ -296,7 +296,8 @@ def test_the_bundle_carries_the_foreground_network_and_the_photo_evaluation_uses
         assert 0 <= r["mask_iou"] <= 1 and len(r["photo_size"]) == 2
     plain = evaluate(str(runs / "img"), str(tiny_data), EvalOptions("train", resolution=16, limit=3, photos=True))
     assert plain["input"] == {"kind": "photos", "remove_background": "auto", "foreground_network": False,
-                              "foreground": None, "exact_masks": False, "mask_sources": {"none": 3}}
+                              "foreground": None, "exact_masks": False, "box_prompts": False,
+                              "mask_sources": {"none": 3}}
     json.dumps(res)
     # the diagnostic: each photo sent with its exact mask as alpha, what a perfect foreground network gives
     exact = evaluate(str(runs / "img"), str(tiny_data),
@@ -304,6 +305,22 @@ def test_the_bundle_carries_the_foreground_network_and_the_photo_evaluation_uses
     assert exact["input"]["mask_sources"] == {"alpha": 3} and not exact["input"]["foreground_network"]
     assert all(r["mask_iou"] > 0.99 for r in exact["per_shape"])
     assert exact["mask_iou_category_mean"] >= res["mask_iou_category_mean"]
+    # with a box prompt about each object (5% larger): the masks stay inside it, the IoU is measured as before
+    boxed = evaluate(str(runs / "img"), str(tiny_data),
+                     EvalOptions("train", resolution=16, limit=3, bundle=str(bundle), photos=True, box_prompts=True))
+    assert boxed["input"]["box_prompts"] and sum(boxed["input"]["mask_sources"].values()) == 3
+    assert all(0 <= r["mask_iou"] <= 1 for r in boxed["per_shape"])
+    import dataclasses
+
+    from model.data.photos import box_prompt, photo_split_view
+    from model.train.tasks import TASKS
+    cfg = dataclasses.replace(load_model(runs / "img").config, data=str(tiny_data))
+    views = {s.shape_id: photo_split_view(s.images, s.shape_id) for s in TASKS["image"].dataset(cfg, "train", 0, limit=3).samples}
+    for r in boxed["per_shape"]:                          # each mask (or crop, where missed) inside its prompt
+        left, top, right, bottom = box_prompt(views[r["shape_id"]].mask)
+        assert top <= r["box"][0] and left <= r["box"][1] and r["box"][2] <= bottom and r["box"][3] <= right
+    with pytest.raises(ValueError, match="--box-prompt goes with --photos"):
+        evaluate(str(runs / "img"), str(tiny_data), EvalOptions("train", resolution=16, limit=3, box_prompts=True))
     for bad in (dict(photos=False), dict(photos=True, foreground=str(runs / "fg"))):
         with pytest.raises(ValueError, match="--exact-masks"):
             evaluate(str(runs / "img"), str(tiny_data), EvalOptions("train", resolution=16, limit=3, exact_masks=True, **bad))
