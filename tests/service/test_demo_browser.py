@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import trimesh
+
 from .conftest import KEY
 
 
@@ -65,8 +67,24 @@ def test_demo_page_in_chromium(browser, server, tmp_path):
     else:
         assert "empty_output" in photo["status"], photo["status"]
 
-    # the photo is shown; a box dragged on it goes with the next request, whose mask is drawn first
+    # the photo is shown; where the mask is unsure (X-Mask-Confidence under 0.6) the page asks for a box
     assert page.is_visible("#photo")
+    glb = trimesh.creation.box().export(file_type="glb")
+    for sure, asks in (("0.42", True), ("0.91", False)):
+        def answer(route, request, sure=sure):           # the shape request answered with this confidence
+            if "debug=mask" in request.url:
+                route.fulfill(status=422, content_type="application/json", body='{"error": {"code": "no_mask"}}')
+            else:
+                route.fulfill(status=200, body=glb, headers={"Content-Type": "model/gltf-binary", "X-Mask": "network",
+                                                             "X-Mask-Confidence": sure})
+        page.route("**/v1/image-to-shape*", answer)
+        before = page.evaluate("() => window.aocnnDemo.loads + window.aocnnDemo.errors")
+        page.click("#run")
+        page.wait_for_function(f"() => window.aocnnDemo.loads + window.aocnnDemo.errors > {before}", timeout=60_000)
+        page.unroute("**/v1/image-to-shape*")
+        assert f"confidence {sure}" in page.inner_text("#s-mask")
+        assert page.inner_text("#box-text").startswith("the mask is unsure") == asks, page.inner_text("#box-text")
+    # a box dragged on it goes with the next request, whose mask is drawn first
     requests = []
     page.on("request", lambda r: requests.append(r.url))
     area = page.locator("#photo").bounding_box()
