@@ -35,8 +35,9 @@ import trimesh
 from PIL import Image
 
 from model.cli import command_parser
-from model.data.photos import box_prompt
+from model.data.photos import box_prompt, with_alpha
 from model.image.decode import WORK_SIDE_DEFAULT
+from model.image.frame import region_of
 from model.image.mask import mask_iou
 
 REAL_MESHES = {
@@ -66,7 +67,6 @@ def reconstruct(data: bytes, runtime, remove_background: str = "auto",
     ``box=``)."""
     from model.decode import DECODED_NORMALIZATION
     from model.image.decode import decode_photo
-    from model.image.frame import region_of
     from model.image.mask import MaskSpec
     from model.surface import surface_mesh
     from model.train.images import frame_or_whole
@@ -99,11 +99,9 @@ def jpeg(rgb: np.ndarray, quality: int = 90) -> bytes:
 
 
 def png_with_alpha(rgb: np.ndarray, mask: np.ndarray) -> bytes:
-    """A PNG of the photo with its exact mask (coverage in [0, 1]) as alpha: what a perfect
-    foreground network would give."""
-    alpha = np.clip(np.round(mask * 255), 0, 255).astype(np.uint8)
+    """A PNG of the photo with its exact mask as alpha (:func:`model.data.photos.with_alpha`)."""
     buf = io.BytesIO()
-    Image.fromarray(np.dstack([rgb, alpha]), "RGBA").save(buf, "PNG")
+    Image.fromarray(with_alpha(rgb, mask), "RGBA").save(buf, "PNG")
     return buf.getvalue()
 
 
@@ -341,9 +339,9 @@ def main(argv: list[str] | None = None) -> int:
                 if way == "photo":
                     shown.append((category, rgb, r.framed, r.octree))
             print(f"| {name} | {category} | " + " | ".join(cells) + " |")
-        print("recognised as their category: " + "; ".join(f"{n} of {len(real)} {way}" if way == "photo" else
-                                                          f"{n} with a {way}" if way == "box prompt" else
-                                                          f"{n} with the {way}" for way, n in hits.items()))
+        said = {"photo": "through the masks", "box prompt": "with a box prompt", "exact mask": "with the exact mask"}
+        print(f"recognised as their category (of {len(real)}): "
+              + "; ".join(f"{n} {said[way]}" for way, n in hits.items()))
     if args.figure:
         rows = []
         for c, rgb, framed, octree in shown:

@@ -5,12 +5,13 @@ network's own evaluation."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 
 from model.checkpoint import load_model
-from model.data.photos import photo_split_view
-from model.image.mask import NoObjectError, mask_iou, object_mask
+from model.data.photos import Photo, photo_split_view
+from model.image.mask import MaskSpec, NoObjectError, mask_iou, object_mask
 from model.networks.foreground import torch_segment
 from model.train.config import TrainConfig
 from model.train.foreground import thin_parts
@@ -30,14 +31,15 @@ def foreground_in_torch(checkpoint: str) -> tuple:
     return torch_segment(loaded.model.net, spec), spec
 
 
-def thin_recall(ours: np.ndarray, photo) -> float:
+def thin_recall(ours: np.ndarray, photo: Photo) -> float:
     """The share of the photo's thin-part pixels (:func:`model.train.foreground.thin_parts` of its
     exact mask and box) that the boolean mask ``ours`` keeps; 1.0 when it has none."""
     thin = thin_parts(photo.mask[None, None].astype(np.float32), [photo.box])[0, 0] > 0
     return float((ours & thin).sum() / thin.sum()) if thin.any() else 1.0
 
 
-def photo_masks(photos: list, segment, spec, refine=None) -> list[np.ndarray]:
+def photo_masks(photos: list[Photo], segment: Callable[[np.ndarray], np.ndarray], spec: MaskSpec,
+                refine: Callable[[np.ndarray], np.ndarray] | None = None) -> list[np.ndarray]:
     """The boolean object mask of each photo (a :class:`model.data.photos.Photo`) through the
     service's path (:func:`model.image.mask.object_mask` with ``segment``, ``spec`` and the
     refinement network ``refine``, if any), at its own resolution; empty where nothing is found."""

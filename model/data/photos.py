@@ -389,13 +389,19 @@ def box_prompt(mask: np.ndarray, margin: float = PROMPT_MARGIN) -> tuple[int, in
     """The box prompt (left, top, right, bottom: the service's ``box=``) about the object of an
     exact mask (H, W) (coverage above 0.5), grown by ``margin`` of its longest side and clipped to
     the photo; None when the object is not in the photo."""
-    box = mask_bounds(mask > 0.5)
+    box = mask_box(mask)
     if box is None:
         return None
     top, left, bottom, right = box
     grow = int(round(margin * max(bottom - top, right - left)))
     h, w = mask.shape
     return max(0, left - grow), max(0, top - grow), min(w, right + grow), min(h, bottom + grow)
+
+
+def with_alpha(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(H, W, 4) uint8: the photo with its exact mask (coverage in [0, 1]) as alpha, what a perfect
+    foreground network would give."""
+    return np.dstack([rgb, np.round(np.clip(mask, 0, 1) * 255).astype(np.uint8)])
 
 
 ENCODER_STYLE = PhotoStyle(scale=(0.35, 0.95), short_side=(200, 320))

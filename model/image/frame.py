@@ -5,7 +5,7 @@ training, evaluation, export and the service all give the encoder identical tens
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -267,27 +267,33 @@ BOX_CONTEXT = 0.5
 image), then the mask is kept inside the box only: the foreground network was trained on objects
 with background about them, and a box drawn tightly around the object, segmented alone, loses
 it (validation photos with a box 5% larger than the object: mask IoU 0.873 segmenting the box
-alone, 0.905 without a box, 0.927 with this context; with a box drawn exactly at the object,
-0.815 alone and 0.931 with it; chosen among 0.25, 0.5, 0.75 and 1 with boxes 0–20% larger than
+alone, 0.905 without a box, 0.926 with this context; with a box drawn exactly at the object,
+0.815 alone and 0.930 with it; chosen among 0.25, 0.5, 0.75 and 1 with boxes 0–20% larger than
 the object, docs/journal/2026-11-29.md)."""
 
 
 def _network_mask(rgb: np.ndarray, segment, spec: MaskSpec, refine, region: tuple[int, int, int, int] | None
                   ) -> np.ndarray:
     """The network's mask of ``rgb`` (:func:`object_mask`), or inside ``region`` only (segmented
-    with :data:`BOX_CONTEXT` around it), placed in an image-sized mask (NoObjectError saying that
-    the box holds no object)."""
+    with :data:`BOX_CONTEXT` around it, specks and the least size then judged inside the box),
+    placed in an image-sized mask (NoObjectError saying that the box holds no object, or an
+    object under :data:`MIN_OBJECT_SIDE` pixels across)."""
     if region is None:
         return object_mask(rgb, segment, spec, refine)
     top, left, bottom, right = region
     grow = int(round(BOX_CONTEXT * max(bottom - top, right - left)))
     y0, x0 = max(0, top - grow), max(0, left - grow)
     y1, x1 = min(rgb.shape[0], bottom + grow), min(rgb.shape[1], right + grow)
+    lenient = replace(spec, keep=0.0, min_area=0.0)       # specks and sizes are judged in the box, not its context
     try:
-        seen = object_mask(np.ascontiguousarray(rgb[y0:y1, x0:x1]), segment, spec, refine)
+        seen = object_mask(np.ascontiguousarray(rgb[y0:y1, x0:x1]), segment, lenient, refine)
         part = clean_mask(seen[top - y0:bottom - y0, left - x0:right - x0], spec)
     except NoObjectError as exc:
         raise NoObjectError(f"the box holds no object ({exc}); draw the box around the object") from None
+    found = mask_bounds(part > 0.5)
+    if max(found[2] - found[0], found[3] - found[1]) < MIN_OBJECT_SIDE:
+        raise NoObjectError(f"the object in the box is only {found[3] - found[1]}x{found[2] - found[0]} pixels; "
+                            f"draw the box around an object at least {MIN_OBJECT_SIDE} pixels across")
     mask = np.zeros(rgb.shape[:2], np.float32)
     mask[top:bottom, left:right] = part
     return mask

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..data.photos import ENCODER_STYLE, box_prompt, imperfect_mask, photo_composite, photo_split_view
+from ..data.photos import ENCODER_STYLE, box_prompt, imperfect_mask, photo_composite, photo_split_view, with_alpha
 from ..data.render import composite
 from ..data.shapes import stable_hash
-from ..image.frame import Framed, ImageSpec, frame_object, prepare_image
+from ..image.frame import Framed, ImageSpec, frame_object, prepare_image, region_of
 from ..image.mask import MaskSpec, NoObjectError, mask_iou
 from .data import Sample
 
@@ -115,9 +115,9 @@ def photo_batch(samples: list[Sample], spec: ImageSpec, segment=None, remove_bac
         photo = photo_split_view(s.images, s.shape_id)
         image = photo.rgb
         if exact_masks:
-            image = np.dstack([photo.rgb, np.round(np.clip(photo.mask, 0, 1) * 255).astype(np.uint8)])
+            image = with_alpha(photo.rgb, photo.mask)
         box = box_prompt(photo.mask) if box_prompts else None
-        region = None if box is None else (box[1], box[0], box[3], box[2])          # top, left, bottom, right
+        region = None if box is None else region_of(box, photo.mask.shape, photo.mask.shape)
         framed = frame_or_whole(image, spec, segment, remove_background, mask_spec, region)
         out[i] = framed.image
         iou = None

@@ -426,3 +426,30 @@ def test_the_blend_keeps_pillows_skipped_pass_and_non_finite_values():
         assert np.array_equal(got[~np.isnan(got)], want[~np.isnan(want)]), (h, w, H, W)
     with pytest.raises(ValueError, match="one shape"):
         bilinear_blend(np.zeros((4, 4), np.float32), np.zeros((4, 5), np.float32), np.zeros((8, 8), np.float32))
+
+
+def colour_network(colour: tuple[int, int, int]):
+    """A stand-in foreground network on the image's own pixels: the object is the given colour."""
+    want = np.asarray(colour, np.int32)
+    return lambda rgb: (np.abs(rgb.astype(np.int32) - want).max(axis=2) < 30).astype(np.float32)
+
+
+def test_a_box_is_judged_on_what_it_holds_not_on_its_context():
+    """The network sees the box with some of the photo about it, but specks, sizes and the answer
+    are the box's own: a small object boxed beside a larger one that reaches into the context is
+    found; a box whose context alone holds the object, or whose object is under MIN_OBJECT_SIDE
+    pixels, is refused with the box named."""
+    rng = np.random.default_rng(0)
+    rgb = rng.uniform(120, 255, (300, 300, 3)).astype(np.uint8)
+    rgb[150:160, 150:160] = (20, 40, 160)                 # a 10 x 10 object, boxed below
+    rgb[100:128, 100:200] = (20, 40, 160)                 # a 28 x 100 one ending 2 pixels above the box
+    net = colour_network((20, 40, 160))
+    # the box 50 x 50, its context 25 pixels: 23 x 95 pixels of the large object, over 10 times the small one
+    f = frame_object(rgb, SPEC, net, "true", region=(130, 130, 180, 180))
+    ours = f.mask > 127
+    assert ours[150:160, 150:160].all() and ours.sum() == 100        # the small object, nothing else
+    with pytest.raises(NoObjectError, match="the box holds no object"):
+        frame_object(rgb, SPEC, net, "true", region=(160, 100, 200, 200))   # below both: the large one in its context
+    rgb[200:205, 50:55] = (20, 40, 160)                   # 5 x 5: under MIN_OBJECT_SIDE
+    with pytest.raises(NoObjectError, match="only 5x5 pixels"):
+        frame_object(rgb, SPEC, net, "true", region=(195, 45, 210, 60))
