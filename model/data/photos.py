@@ -23,7 +23,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFilter, ImageFont
 from scipy import ndimage
 
-from ..image.mask import mask_bounds
+from ..image.mask import grown_box, mask_bounds
 from .render import render_views
 from .shapes import CATEGORIES, generate, split_of, stable_hash
 
@@ -392,10 +392,8 @@ def box_prompt(mask: np.ndarray, margin: float = PROMPT_MARGIN) -> tuple[int, in
     box = mask_box(mask)
     if box is None:
         return None
-    top, left, bottom, right = box
-    grow = int(round(margin * max(bottom - top, right - left)))
-    h, w = mask.shape
-    return max(0, left - grow), max(0, top - grow), min(w, right + grow), min(h, bottom + grow)
+    top, left, bottom, right = grown_box(box, *mask.shape, margin)
+    return left, top, right, bottom
 
 
 def with_alpha(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:

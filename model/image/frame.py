@@ -12,7 +12,7 @@ import numpy as np
 from PIL import Image
 
 from .decode import MAX_PIXELS_DEFAULT, ImageError, decode_image
-from .mask import MaskSpec, NoObjectError, clean_mask, mask_bounds, mask_confidence, object_mask, spec_from_dict
+from .mask import MaskSpec, NoObjectError, clean_mask, grown_box, mask_bounds, mask_confidence, object_mask, spec_from_dict
 
 
 @dataclass(frozen=True)
@@ -281,9 +281,7 @@ def _network_mask(rgb: np.ndarray, segment, spec: MaskSpec, refine, region: tupl
     if region is None:
         return object_mask(rgb, segment, spec, refine)
     top, left, bottom, right = region
-    grow = int(round(BOX_CONTEXT * max(bottom - top, right - left)))
-    y0, x0 = max(0, top - grow), max(0, left - grow)
-    y1, x1 = min(rgb.shape[0], bottom + grow), min(rgb.shape[1], right + grow)
+    y0, x0, y1, x1 = grown_box(region, *rgb.shape[:2], BOX_CONTEXT)
     lenient = replace(spec, keep=0.0, min_area=0.0)       # specks and sizes are judged in the box, not its context
     try:
         seen = object_mask(np.ascontiguousarray(rgb[y0:y1, x0:x1]), segment, lenient, refine)

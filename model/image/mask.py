@@ -351,6 +351,14 @@ def to_image(rgb: np.ndarray, p: np.ndarray, spec: MaskSpec, guide: np.ndarray |
     return np.clip(p if p.shape == rgb.shape[:2] else resize_mask(p, *rgb.shape[:2]), 0.0, 1.0)
 
 
+def grown_box(box: tuple[int, int, int, int], height: int, width: int, margin: float) -> tuple[int, int, int, int]:
+    """(top, left, bottom, right), exclusive: ``box`` (the same order) grown on each side by
+    ``margin`` of its longest side (rounded to whole pixels), clipped to a height x width image."""
+    top, left, bottom, right = box
+    grow = int(round(margin * max(bottom - top, right - left)))
+    return max(0, top - grow), max(0, left - grow), min(height, bottom + grow), min(width, right + grow)
+
+
 def object_square(box: tuple[int, int, int, int], height: int, width: int, margin: float) -> tuple[int, int, int, int]:
     """(y0, y1, x0, x1), exclusive: the square about ``box`` (top, left, bottom, right) whose side
     is the box's longest side grown by ``margin`` on each side, clipped to a height x width image:

@@ -69,8 +69,7 @@ async function showPhoto(blob) {
   canvas.width = photo.image.width;
   canvas.height = photo.image.height;
   $('photo-box').hidden = false;
-  $('box-text').textContent = 'drag on the photo to box the object (optional)';
-  $('box-text').classList.remove('hint');
+  boxText();
   drawPhoto();
 }
 
@@ -126,19 +125,23 @@ function endBox() {
   if (b[2] - b[0] >= 4 && b[3] - b[1] >= 4) {   // a click is not a box
     photo.box = b;
     photo.mask = null;
-    $('box-text').textContent = `box ${b.join(',')} (left, top, right, bottom)`;
-    $('box-text').classList.remove('hint');
+    boxText(`box ${b.join(',')} (left, top, right, bottom)`);
     $('clear-box').disabled = false;
   }
   drawPhoto();
+}
+
+// The line under the photo: the box drawn, the invitation to draw one, or (hint) a request for one.
+function boxText(text = 'drag on the photo to box the object (optional)', hint = false) {
+  $('box-text').textContent = text;
+  $('box-text').classList.toggle('hint', hint);
 }
 
 function clearBox() {
   photo.box = null;
   photo.mask = null;
   $('clear-box').disabled = true;
-  $('box-text').textContent = 'drag on the photo to box the object (optional)';
-  $('box-text').classList.remove('hint');
+  boxText();
   if (photo.image) drawPhoto();
 }
 
@@ -275,12 +278,10 @@ function showHeaders(response) {
   const box = response.headers.get('X-Crop-Box');              // left,top,right,bottom
   const sure = response.headers.get('X-Mask-Confidence');
   $('s-mask').textContent = `${h('X-Mask')}${box ? ` (box ${box})` : ''}${sure ? `, confidence ${sure}` : ''}`;
-  if (!photo.box) {                            // without a box: ask for one where the mask is unsure
-    const unsure = Boolean(sure) && Number(sure) < UNSURE;
-    $('box-text').textContent = unsure
-      ? `the mask is unsure (confidence ${sure}): drag on the photo to box the object, then run again`
-      : 'drag on the photo to box the object (optional)';
-    $('box-text').classList.toggle('hint', unsure);
+  if (!photo.box && sure && Number(sure) < UNSURE) {    // without a box: ask for one where the mask is unsure
+    boxText(`the mask is unsure (confidence ${sure}): drag on the photo to box the object, then run again`, true);
+  } else if (!photo.box) {
+    boxText();
   }
   $('s-dropped').textContent = h('X-Points-Dropped');
   $('s-timing').textContent = h('Server-Timing');
