@@ -562,9 +562,11 @@ def test_the_refinement_network_goes_into_the_bundle_and_the_framing_uses_it(tin
     res = evaluate(str(runs / "fg"), str(tiny_data), EvalOptions("train", limit=3, bundle=str(tmp_path / "b")))
     cfg = dataclasses.replace(load_model(runs / "fg").config, data=str(tiny_data))
     photos = [photo_split_view(s.images, s.shape_id) for s in TASKS["foreground"].dataset(cfg, "train", 0, limit=3).samples]
-    recalls = [thin_recall(m, p) for m, p in zip(photo_masks(photos, rt.segment, spec, rt.refine), photos)]
-    assert res["refined"] and [r["thin_recall"] for r in res["per_shape"]] == recalls
-    assert res["thin_recall_mean"] == pytest.approx(np.mean(recalls))
+    served = Runtime(bundle)                              # as the evaluation opens it (its thread count)
+    recalls = [thin_recall(m, p) for m, p in zip(photo_masks(photos, served.segment, spec, served.refine), photos)]
+    # a pixel at 0.5 may flip between onnxruntime's kernels: a tolerance, far below the refinement's effect
+    assert res["refined"] and [r["thin_recall"] for r in res["per_shape"]] == pytest.approx(recalls, abs=0.02)
+    assert res["thin_recall_mean"] == pytest.approx(np.mean(recalls), abs=0.02)
     plain = evaluate(str(runs / "fg"), str(tiny_data), EvalOptions("train", limit=3))
     assert not plain["refined"] and all(0 <= r["thin_recall"] <= 1 for r in plain["per_shape"])
     with pytest.raises(BundleError, match="--refine goes with --foreground"):
