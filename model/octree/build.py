@@ -15,6 +15,7 @@ import numpy as np
 from . import keys as morton
 from .errors import OctreeInputError
 from .geometry import fit_planes
+from .jit import compiled
 from .knn import nearest_distances
 from .neighbors import build_neighbors
 from .octree import EMPTY, LEAF, PLANE_SCALE, SPLIT, Normalization, Octree, OctreeLevel
@@ -142,10 +143,8 @@ def _level(lv: int, node_key: np.ndarray, node_ne: np.ndarray, parent: np.ndarra
         # every non-empty octant of the depth, in key order: the moments as they are
         sums = mom.sums if len(ne) == len(mom.key) else np.take(mom.sums, ne, axis=1)
         normal, centroid, _ = fit_planes(mom.count[ne], sums[:3], sums[3:9], sums[9:])
-        centre = (morton.decode(node_key[nonempty])[0] + 0.5) * size
-        offset = (normal * (centre - (centroid + 0.5))).sum(1)
-        plane[nonempty, :3] = normal
-        plane[nonempty, 3] = offset / (PLANE_SCALE * size)
+        centre, offset = np.empty((len(ne), 3)), np.empty(len(ne))
+        _place_planes(node_key, nonempty, normal, centroid, size, PLANE_SCALE * size, centre, offset, plane)
     if lv < rule.full_depth:
         split = np.ones(n, dtype=bool)
     elif lv == rule.depth:
@@ -259,3 +258,30 @@ def _estimate_spacing(pts: np.ndarray, thin_to: int = 25_000) -> float:
     d = nearest_distances(sub, sub[:: max(1, len(sub) // 4000)], 2)   # a k-d tree's distances, faster
     d = d[:, 1][d[:, 1] > 0]
     return float(2.0 * d.mean() * np.sqrt(f)) if len(d) else 0.0
+
+
+@compiled
+def _place_planes(node_key: np.ndarray, nonempty: np.ndarray, normal: np.ndarray, centroid: np.ndarray, size: float,
+                  scale: float, centre: np.ndarray, offset: np.ndarray, plane: np.ndarray) -> None:
+    """Each non-empty octant's centre (its key's coordinates + 0.5, times ``size``), its plane's
+    offset from the centre ``n . (centre - (centroid + 0.5))`` and its row of ``plane`` (normal,
+    offset / ``scale``, as float32), operation for operation as the NumPy formulation."""
+    j = 0
+    for i in range(len(node_key)):
+        if not nonempty[i]:
+            continue
+        key = node_key[i]
+        x = y = z = 0
+        for b in range(16):
+            x |= ((key >> (3 * b + 2)) & 1) << b
+            y |= ((key >> (3 * b + 1)) & 1) << b
+            z |= ((key >> (3 * b)) & 1) << b
+        c0, c1, c2 = (float(x) + 0.5) * size, (float(y) + 0.5) * size, (float(z) + 0.5) * size
+        n0, n1, n2 = normal[j, 0], normal[j, 1], normal[j, 2]
+        off = n0 * (c0 - (centroid[j, 0] + 0.5)) + n1 * (c1 - (centroid[j, 1] + 0.5))
+        off += n2 * (c2 - (centroid[j, 2] + 0.5))
+        centre[j, 0], centre[j, 1], centre[j, 2] = c0, c1, c2
+        offset[j] = off
+        plane[i, 0], plane[i, 1], plane[i, 2] = n0, n1, n2
+        plane[i, 3] = off / scale
+        j += 1

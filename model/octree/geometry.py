@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .jit import compiled
+from .jit import compiled, inlined
 
 MAX_POLYGON = 6
 """A plane cuts a cube in a convex polygon of at most 6 vertices."""
@@ -33,46 +33,113 @@ def bounding_box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t.min(1), t.max(1)
 
 
-def symmetric_eigen(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenvalues (3, M) in descending order of symmetric 3x3 matrices given by components.
+def smallest_eigenvectors(c: np.ndarray, refine: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Unit eigenvectors (M, 3) of the smallest eigenvalues of symmetric 3x3 matrices given by
+    components ``c`` (6, M): xx, xy, xz, yy, yz, zz; and their eigenvalues (3, M), descending.
 
-    ``c`` is (6, M): xx, xy, xz, yy, yz, zz.  Closed form (trigonometric method) on contiguous
-    rows, several times faster than ``np.linalg.eigh`` on many small matrices.
+    Closed form (the trigonometric method), then the null space of ``C - lambda I`` as the best of
+    its three row crosses (where that space has more than one dimension the vector is arbitrary
+    but unit length).  ``refine``: the closed-form eigenvalues carry sqrt(eps) relative error near
+    a double root; one Rayleigh-quotient step makes the smallest one accurate before its vector is
+    taken again.  Compiled, row by row, in the order of the NumPy formulation it replaced
+    (``tests/octree/reference_planes.py``: the same bits); the arc cosine and cosines are NumPy's.
     """
-    xx, xy, xz, yy, yz, zz = c
+    c = np.ascontiguousarray(c, dtype=np.float64)
+    m = c.shape[1]
+    q, p, arg = np.empty(m), np.empty(m), np.empty(m)
+    _eigen_angle(c, q, p, arg)
+    phi = np.arccos(arg) / 3.0
+    values, vectors = np.empty((3, m)), np.empty((m, 3))
+    _eigen_vectors(c, q, p, np.cos(phi), np.cos(phi + 2.0 * np.pi / 3.0), refine, values, vectors)
+    return vectors, values
+
+
+@compiled
+def _eigen_angle(c: np.ndarray, q: np.ndarray, p: np.ndarray, arg: np.ndarray) -> None:
+    """Per matrix, :func:`_angle` into ``q``, ``p`` and ``arg``."""
+    for i in range(c.shape[1]):
+        q[i], p[i], arg[i] = _angle(c[0, i], c[1, i], c[2, i], c[3, i], c[4, i], c[5, i])
+
+
+@inlined
+def _angle(xx: float, xy: float, xz: float, yy: float, yz: float, zz: float) -> tuple[float, float, float]:
+    """The trigonometric method's mean eigenvalue ``q``, spread ``p`` and the cosine of three times
+    its angle (clipped to [-1, 1])."""
     q = (xx + yy + zz) / 3.0
     p1 = xy * xy + xz * xz + yz * yz
     dx, dy, dz = xx - q, yy - q, zz - q
     p = np.sqrt((dx * dx + dy * dy + dz * dz + 2.0 * p1) / 6.0)
-    inv = 1.0 / np.where(p > 0, p, 1.0)
+    inv = 1.0 / (p if p > 0 else 1.0)
     dx, dy, dz = dx * inv, dy * inv, dz * inv
     bxy, bxz, byz = xy * inv, xz * inv, yz * inv
     det = dx * (dy * dz - byz * byz) - bxy * (bxy * dz - byz * bxz) + bxz * (bxy * byz - dy * bxz)
-    phi = np.arccos(np.clip(det * 0.5, -1.0, 1.0)) / 3.0
-    e1 = q + 2.0 * p * np.cos(phi)
-    e3 = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
-    return np.stack([e1, 3.0 * q - e1 - e3, e3])
+    a = det * 0.5
+    if a > 1.0:
+        a = 1.0
+    elif a < -1.0:
+        a = -1.0
+    return q, p, a
 
 
-def eigenvector(c: np.ndarray, lam: np.ndarray) -> np.ndarray:
-    """Unit vectors (M, 3) spanning the null space of ``C - lam I`` (best of three row crosses).
+@inlined
+def _nan_max(a: float, b: float) -> float:
+    """``np.maximum``: NaN if either is NaN."""
+    if a != a or b != b:
+        return np.nan
+    return a if a >= b else b
 
-    Where the null space is more than one-dimensional the result is arbitrary but unit length.
-    """
-    xx, xy, xz, yy, yz, zz = c
+
+@inlined
+def _null_vector(xx: float, xy: float, xz: float, yy: float, yz: float, zz: float, lam: float,
+                 out: np.ndarray, i: int) -> None:
+    """Row ``i`` of ``out``: the unit null vector of ``C - lam I`` (the best of three row crosses)."""
     ax, by, cz = xx - lam, yy - lam, zz - lam
-    # rows r0 = (ax, xy, xz), r1 = (xy, by, yz), r2 = (xz, yz, cz)
-    c01 = np.stack([xy * yz - xz * by, xz * xy - ax * yz, ax * by - xy * xy])
-    c02 = np.stack([xy * cz - xz * yz, xz * xz - ax * cz, ax * yz - xy * xz])
-    c12 = np.stack([by * cz - yz * yz, yz * xz - xy * cz, xy * yz - by * xz])
-    n01, n02, n12 = (c01 * c01).sum(0), (c02 * c02).sum(0), (c12 * c12).sum(0)
-    best = np.where(n01 >= n02, np.where(n01 >= n12, 0, 2), np.where(n02 >= n12, 1, 2))
-    v = np.where(best == 0, c01, np.where(best == 1, c02, c12))
-    n = np.sqrt(np.maximum(np.maximum(n01, n02), n12))
-    ok = n > 0
-    v = v / np.where(ok, n, 1.0)
-    v[0, ~ok] = 1.0
-    return np.ascontiguousarray(v.T)
+    a0, a1, a2 = xy * yz - xz * by, xz * xy - ax * yz, ax * by - xy * xy
+    b0, b1, b2 = xy * cz - xz * yz, xz * xz - ax * cz, ax * yz - xy * xz
+    c0, c1, c2 = by * cz - yz * yz, yz * xz - xy * cz, xy * yz - by * xz
+    n01 = a0 * a0 + a1 * a1 + a2 * a2
+    n02 = b0 * b0 + b1 * b1 + b2 * b2
+    n12 = c0 * c0 + c1 * c1 + c2 * c2
+    if n01 >= n02:
+        best = 0 if n01 >= n12 else 2
+    else:
+        best = 1 if n02 >= n12 else 2
+    if best == 0:
+        v0, v1, v2 = a0, a1, a2
+    elif best == 1:
+        v0, v1, v2 = b0, b1, b2
+    else:
+        v0, v1, v2 = c0, c1, c2
+    n = np.sqrt(_nan_max(_nan_max(n01, n02), n12))
+    if n > 0:
+        out[i, 0], out[i, 1], out[i, 2] = v0 / n, v1 / n, v2 / n
+    else:
+        out[i, 0], out[i, 1], out[i, 2] = 1.0, v1 / 1.0, v2 / 1.0
+
+
+@compiled
+def _eigen_vectors(c: np.ndarray, q: np.ndarray, p: np.ndarray, cos1: np.ndarray, cos3: np.ndarray,
+                   refine: bool, values: np.ndarray, vectors: np.ndarray) -> None:
+    """Per matrix, :func:`_eigen` into ``values`` (3, M) and ``vectors`` (M, 3)."""
+    for i in range(c.shape[1]):
+        values[0, i], values[1, i], values[2, i] = _eigen(c[0, i], c[1, i], c[2, i], c[3, i], c[4, i], c[5, i],
+                                                          q[i], p[i], cos1[i], cos3[i], refine, vectors, i)
+
+
+@inlined
+def _eigen(xx: float, xy: float, xz: float, yy: float, yz: float, zz: float, q: float, p: float, cos1: float,
+           cos3: float, refine: bool, vectors: np.ndarray, i: int) -> tuple[float, float, float]:
+    """The eigenvalues, descending, from :func:`_angle`'s parts and the cosines of the largest's
+    and the smallest's angle; the smallest's vector into row ``i`` of ``vectors``, refined by a
+    Rayleigh step."""
+    e1 = q + 2.0 * p * cos1
+    e3 = q + 2.0 * p * cos3
+    _null_vector(xx, xy, xz, yy, yz, zz, e3, vectors, i)
+    if refine:
+        x, y, z = vectors[i, 0], vectors[i, 1], vectors[i, 2]
+        lam = xx * x * x + yy * y * y + zz * z * z + 2.0 * (xy * x * y + xz * x * z + yz * y * z)
+        _null_vector(xx, xy, xz, yy, yz, zz, lam, vectors, i)
+    return e1, 3.0 * q - e1 - e3, e3
 
 
 def fit_planes(count: np.ndarray, s1: np.ndarray, s2: np.ndarray, nsum: np.ndarray
@@ -82,49 +149,114 @@ def fit_planes(count: np.ndarray, s1: np.ndarray, s2: np.ndarray, nsum: np.ndarr
     ``count`` (M,), ``s1`` (3, M) sums of points, ``s2`` (6, M) sums of products xx, xy, xz,
     yy, yz, zz, ``nsum`` (3, M) sums of input normals.  Returns unit normals (M, 3), centroids
     (M, 3) and a mask of degenerate fits (a single point or collinear points), whose normal is
-    the average input normal made orthogonal to the points' line.
+    the average input normal made orthogonal to the points' line.  Three or more points: the
+    smallest eigenvector of their covariance, refined by a Rayleigh step
+    (:func:`smallest_eigenvectors`); a spread along the second axis below ~0.03% of the first is a
+    line (or a point), no plane.  Compiled, node by node, in the order of the NumPy formulation it
+    replaced (``tests/octree/reference_planes.py``: the same bits).
     """
-    m = s1 / count
-    cov = s2 / count
-    for r, (i, j) in enumerate(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
-        cov[r] -= m[i] * m[j]
-    normal = np.empty((3, len(count)))           # filled as rows, returned transposed
-    degenerate = count < 3
-    full = np.flatnonzero(~degenerate)
-    if len(full):
-        c = cov[:, full]
-        vals = symmetric_eigen(c)
-        v = eigenvector(c, vals[2])
-        # The closed-form eigenvalues carry sqrt(eps) relative error near a double root; one
-        # Rayleigh-quotient step makes the smallest one accurate before taking its vector again.
-        normal[:, full] = eigenvector(c, _rayleigh(c, v)).T
-        # Spread along the second axis below ~0.03% of the first: a line (or a point), no plane.
-        degenerate[full] = (vals[1] <= 1e-7 * vals[0]) | (vals[0] <= 0)
-    # One point has no spread: its normal is its own (what _line_normals gives, without the work).
-    single = np.flatnonzero(count == 1)
-    a = nsum[:, single]
-    a = a / np.maximum(np.sqrt((a * a).sum(0)), 1e-300)
-    an = np.sqrt((a * a).sum(0))
+    count = np.ascontiguousarray(count)
+    m = len(count)
+    centroid, cov = np.empty((m, 3)), np.empty((6, m))
+    q, p, arg = np.empty(m), np.empty(m), np.empty(m)
+    _moment_covariances(count, s1, s2, centroid, cov, q, p, arg)
+    phi = np.arccos(arg) / 3.0
+    normal, degenerate, bad = np.empty((m, 3)), np.empty(m, np.bool_), np.zeros(m, np.bool_)
+    _plane_normals(count, cov, nsum, q, p, np.cos(phi), np.cos(phi + 2.0 * np.pi / 3.0), normal, degenerate, bad)
+    if bad.any():             # the average normal vanishes or lies along the line: any direction across it
+        rows = np.flatnonzero(bad)
+        normal[rows] = _across(cov[:, rows])
+        flip = (normal[rows] * nsum[:, rows].T).sum(1) < 0
+        normal[rows[flip]] *= -1.0
+    return normal, centroid, degenerate
+
+
+@compiled
+def _moment_covariances(count, s1, s2, centroid, cov, q, p, arg) -> None:
+    """Centroids (M, 3) and covariances (6, M) from the moments; for nodes of three or more
+    points the trigonometric method's parts (:func:`_eigen_angle`) into ``q``, ``p``, ``arg``
+    (elsewhere arg = 1)."""
+    for i in range(len(count)):
+        n = count[i]
+        m0, m1, m2 = s1[0, i] / n, s1[1, i] / n, s1[2, i] / n
+        centroid[i, 0], centroid[i, 1], centroid[i, 2] = m0, m1, m2
+        cov[0, i] = s2[0, i] / n - m0 * m0
+        cov[1, i] = s2[1, i] / n - m0 * m1
+        cov[2, i] = s2[2, i] / n - m0 * m2
+        cov[3, i] = s2[3, i] / n - m1 * m1
+        cov[4, i] = s2[4, i] / n - m1 * m2
+        cov[5, i] = s2[5, i] / n - m2 * m2
+        q[i], p[i], arg[i] = 0.0, 0.0, 1.0
+        if n >= 3:
+            q[i], p[i], arg[i] = _angle(cov[0, i], cov[1, i], cov[2, i], cov[3, i], cov[4, i], cov[5, i])
+
+
+@inlined
+def _unit(a0: float, a1: float, a2: float, floor: float) -> tuple[float, float, float]:
+    """``a / np.maximum(np.sqrt((a * a).sum(0)), floor)``."""
+    n = _nan_max(np.sqrt(a0 * a0 + a1 * a1 + a2 * a2), floor)
+    return a0 / n, a1 / n, a2 / n
+
+
+@compiled
+def _plane_normals(count, cov, nsum, q, p, cos1, cos3, normal, degenerate, bad) -> None:
+    """Each node's oriented normal (M, 3) and whether its fit is degenerate; ``bad``: a degenerate
+    node whose average normal vanishes (or lies along its line), left to :func:`_across`."""
+    for i in range(len(count)):
+        n0 = n1 = n2 = 0.0
+        degenerate[i] = count[i] < 3
+        if not degenerate[i]:
+            e1, e2, _ = _eigen(cov[0, i], cov[1, i], cov[2, i], cov[3, i], cov[4, i], cov[5, i], q[i], p[i],
+                               cos1[i], cos3[i], True, normal, i)
+            degenerate[i] = (e2 <= 1e-7 * e1) or (e1 <= 0)
+            n0, n1, n2 = normal[i, 0], normal[i, 1], normal[i, 2]
+        single = False
+        if count[i] == 1:
+            a0, a1, a2 = _unit(nsum[0, i], nsum[1, i], nsum[2, i], 1e-300)
+            an = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+            if an > 1e-12:
+                n0, n1, n2 = a0 / an, a1 / an, a2 / an
+                single = True
+        if degenerate[i] and not single:
+            ok, n0, n1, n2 = _line_normal(cov[0, i], cov[1, i], cov[2, i], cov[3, i], cov[4, i], cov[5, i],
+                                          nsum[0, i], nsum[1, i], nsum[2, i])
+            bad[i] = not ok
+        if n0 * nsum[0, i] + n1 * nsum[1, i] + n2 * nsum[2, i] < 0:
+            n0, n1, n2 = -n0, -n1, -n2
+        normal[i, 0], normal[i, 1], normal[i, 2] = n0, n1, n2
+
+
+@inlined
+def _line_normal(xx, xy, xz, yy, yz, zz, s0, s1, s2) -> tuple[bool, float, float, float]:
+    """A normal for points on a line (or one point): the average normal ``s`` minus its part along
+    the line.  For collinear points the covariance is ``s^2 u u^T``, so its column with the largest
+    diagonal entry points along the line ``u`` (coordinates are in the unit cube: 1e-20 is far
+    below any octant's size squared, so smaller spreads count as a single point).  False where
+    that leaves no direction (the average normal vanishes or lies along the line)."""
+    use_y = yy > xx
+    use_z = zz > _nan_max(xx, yy)
+    if use_z:
+        u0, u1, u2 = xz, yz, zz
+    elif use_y:
+        u0, u1, u2 = xy, yy, yz
+    else:
+        u0, u1, u2 = xx, xy, xz
+    un = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+    line = (_nan_max(_nan_max(xx, yy), zz) > 1e-20) and (un > 0)
+    d = un if un > 0 else 1.0
+    u0, u1, u2 = u0 / d, u1 / d, u2 / d
+    a0, a1, a2 = _unit(s0, s1, s2, 1e-300)
+    w = a0 * u0 + a1 * u1 + a2 * u2 if line else 0.0
+    a0, a1, a2 = a0 - w * u0, a1 - w * u1, a2 - w * u2
+    an = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
     ok = an > 1e-12
-    normal[:, single[ok]] = a[:, ok] / an[ok]
-    rest = degenerate.copy()
-    rest[single[ok]] = False
-    if rest.any():
-        normal[:, rest] = _line_normals(cov[:, rest], nsum[:, rest]).T
-    flip = (normal * nsum).sum(0) < 0
-    normal[:, flip] *= -1.0
-    normal = normal.T
-    return normal, np.ascontiguousarray(m.T), degenerate
+    d = an if ok else 1.0
+    return ok, a0 / d, a1 / d, a2 / d
 
 
-def _line_normals(cov: np.ndarray, nsum: np.ndarray) -> np.ndarray:
-    """Normals for points on a line (or one point): the average normal minus its part along the line.
-
-    For collinear points the covariance is ``s^2 u u^T``, so its column with the largest diagonal
-    entry points along the line ``u`` (coordinates are in the unit cube: 1e-20 is far below any
-    octant's size squared, so smaller spreads count as a single point).  Works on contiguous
-    component rows; this runs for most octants at the max depth.
-    """
+def _across(cov: np.ndarray) -> np.ndarray:
+    """Unit vectors (M, 3) across each line of collinear points (``cov`` (6, M)), or along z where
+    there is no line: where the average normal leaves no direction (:func:`_line_normal`)."""
     xx, xy, xz, yy, yz, zz = cov
     use_y = yy > xx
     use_z = zz > np.maximum(xx, yy)
@@ -134,26 +266,10 @@ def _line_normals(cov: np.ndarray, nsum: np.ndarray) -> np.ndarray:
     un = np.sqrt((u * u).sum(0))
     line = (np.maximum(np.maximum(xx, yy), zz) > 1e-20) & (un > 0)
     u /= np.where(un > 0, un, 1.0)
-    a = nsum / np.maximum(np.sqrt((nsum * nsum).sum(0)), 1e-300)
-    a -= np.where(line, (a * u).sum(0), 0.0) * u
-    an = np.sqrt((a * a).sum(0))
-    ok = an > 1e-12
-    a /= np.where(ok, an, 1.0)
-    if not ok.all():
-        # The average normal vanishes (or lies along the line): any direction across the line.
-        bad = np.flatnonzero(~ok)
-        ub = np.where(line[bad], u[:, bad], [[0.0], [0.0], [1.0]]).T
-        helper = np.where(np.abs(ub[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-        perp = np.cross(ub, helper)
-        a[:, bad] = (perp / np.linalg.norm(perp, axis=1, keepdims=True)).T
-    return np.ascontiguousarray(a.T)
-
-
-def _rayleigh(c: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """v^T C v for unit vectors v (M, 3) and matrices given by components (6, M)."""
-    x, y, z = v.T
-    xx, xy, xz, yy, yz, zz = c
-    return xx * x * x + yy * y * y + zz * z * z + 2.0 * (xy * x * y + xz * x * z + yz * y * z)
+    ub = np.where(line, u, [[0.0], [0.0], [1.0]]).T
+    helper = np.where(np.abs(ub[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    perp = np.cross(ub, helper)
+    return perp / np.linalg.norm(perp, axis=1, keepdims=True)
 
 
 def plane_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -209,26 +325,60 @@ def polygon_distance(points: np.ndarray, normal: np.ndarray, offset: np.ndarray,
     """Euclidean distance from each point to its own planar convex polygon.
 
     ``points`` (K, 3), and per point its polygon's plane (normal, offset) and vertices (K, 6, 3)
-    as returned by :func:`cube_polygons` (all in the same local frame).
+    as returned by :func:`cube_polygons` (all in the same local frame): the distance to the plane
+    and, where the point's foot on it lies outside the polygon (beyond an edge by more than 1e-12
+    of the longest edge squared), the distance from the foot to the nearest edge.  Compiled, in
+    the order of the NumPy formulation it replaced (``tests/octree/reference_planes.py``).
     """
-    s = (points * normal).sum(1) + offset
-    q = points - s[:, None] * normal
-    return np.sqrt(s * s + _outside_distance_sq(q, normal, verts))
+    out = np.empty(len(points))
+    _polygon_distance(np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(normal, dtype=np.float64),
+                      np.ascontiguousarray(offset, dtype=np.float64), np.ascontiguousarray(verts, dtype=np.float64),
+                      out)
+    return out
 
 
-def _outside_distance_sq(q: np.ndarray, normal: np.ndarray, verts: np.ndarray) -> np.ndarray:
-    """Squared distance from in-plane points ``q`` to their convex polygons (0 inside)."""
-    a = verts
-    b = np.roll(verts, -1, axis=1)
-    e = b - a                                                           # (K, 6, 3)
-    r = q[:, None] - a
-    side = np.einsum("kij,kj->ki", np.cross(e, r), normal)
-    inside = (side >= -1e-12 * np.einsum("kij,kij->ki", e, e).max(1, initial=0)[:, None]).all(1)
-    ee = np.einsum("kij,kij->ki", e, e)
-    t = np.clip(np.einsum("kij,kij->ki", r, e) / np.where(ee > 0, ee, 1.0), 0.0, 1.0)
-    d = r - t[..., None] * e
-    dist2 = np.einsum("kij,kij->ki", d, d).min(1)
-    return np.where(inside, 0.0, dist2)
+@compiled
+def _polygon_distance(points, normal, offset, verts, out) -> None:
+    """:func:`polygon_distance` into ``out``."""
+    m = verts.shape[1]
+    side = np.empty(m)
+    for k in range(len(points)):
+        n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+        s = points[k, 0] * n0 + points[k, 1] * n1 + points[k, 2] * n2 + offset[k]
+        q0, q1, q2 = points[k, 0] - s * n0, points[k, 1] - s * n1, points[k, 2] - s * n2
+        longest = 0.0
+        dist2 = np.inf
+        nan = False
+        for i in range(m):
+            j = i + 1 if i + 1 < m else 0
+            a0, a1, a2 = verts[k, i, 0], verts[k, i, 1], verts[k, i, 2]
+            e0, e1, e2 = verts[k, j, 0] - a0, verts[k, j, 1] - a1, verts[k, j, 2] - a2
+            r0, r1, r2 = q0 - a0, q1 - a1, q2 - a2
+            x0, x1, x2 = e1 * r2 - e2 * r1, e2 * r0 - e0 * r2, e0 * r1 - e1 * r0
+            side[i] = x0 * n0 + x1 * n1 + x2 * n2
+            ee = e0 * e0 + e1 * e1 + e2 * e2
+            if ee != ee or longest != longest:
+                longest = np.nan
+            elif ee > longest:
+                longest = ee
+            t = (r0 * e0 + r1 * e1 + r2 * e2) / (ee if ee > 0 else 1.0)
+            if t < 0.0:
+                t = 0.0
+            elif t > 1.0:
+                t = 1.0
+            d0, d1, d2 = r0 - t * e0, r1 - t * e1, r2 - t * e2
+            dd = d0 * d0 + d1 * d1 + d2 * d2
+            if dd != dd:
+                nan = True
+            elif dd < dist2:
+                dist2 = dd
+        threshold = -1e-12 * longest
+        inside = True
+        for i in range(m):
+            if not side[i] >= threshold:
+                inside = False
+        outside2 = 0.0 if inside else (np.nan if nan else dist2)
+        out[k] = np.sqrt(s * s + outside2)
 
 
 @dataclass
@@ -294,19 +444,41 @@ def patch_probes(normal: np.ndarray, offset: np.ndarray, verts: np.ndarray, coun
     g = np.linspace(-radius, radius, k)
     foot = -offset[:, None] * normal                                     # (M, 3)
     half = size / 2.0 * (1.0 + 1e-9)
-    # Per coordinate the grid is an outer sum of a row term and a column term.
-    inside = None
-    for c in range(3):
-        r = foot[:, c, None] + g[None, :] * u[:, c, None]                # (M, k)
-        q = g[None, :] * v[:, c, None]
-        ok = np.abs(r[:, :, None] + q[:, None, :]) <= half
-        inside = ok if inside is None else np.logical_and(inside, ok, out=inside)
+    counts = np.empty(len(normal), np.int64)
+    _grid_inside(foot, u, v, g, half, counts, np.empty(0, np.int64))
+    grid = np.empty(int(counts.sum()), np.int64)
+    _grid_inside(foot, u, v, g, half, counts, grid)
     em, ek = np.nonzero(np.arange(MAX_POLYGON)[None] < count[:, None])
     # edge k runs from vertex k to vertex k + 1, the last one back to vertex 0
     nxt = np.where(ek + 1 < count[em], ek + 1, 0)
-    return PatchProbes(u=u, v=v, foot=foot, g=g, grid=np.flatnonzero(inside),
+    return PatchProbes(u=u, v=v, foot=foot, g=g, grid=grid,
                        edge_a=verts[em, ek], edge_b=verts[em, nxt],
                        edge_poly=em, per_edge=int(np.ceil(np.sqrt(2.0) * size / spacing)))
+
+
+@compiled
+def _grid_inside(foot: np.ndarray, u: np.ndarray, v: np.ndarray, g: np.ndarray, half: float, counts: np.ndarray,
+                 grid: np.ndarray) -> None:
+    """The grid probes of each patch inside its cube, ``|foot + g_i u + g_j v| <= half`` on every
+    axis, the sum taken as ``(foot + g_i u) + g_j v``: with an empty ``grid`` their number per patch
+    into ``counts``; else their flat indices ``(m * k + i) * k + j`` (ascending) into ``grid``."""
+    k = len(g)
+    fill = len(grid) > 0
+    w = 0
+    for m in range(len(foot)):
+        n = 0
+        for i in range(k):
+            r0 = foot[m, 0] + g[i] * u[m, 0]
+            r1 = foot[m, 1] + g[i] * u[m, 1]
+            r2 = foot[m, 2] + g[i] * u[m, 2]
+            for j in range(k):
+                if (abs(r0 + g[j] * v[m, 0]) <= half and abs(r1 + g[j] * v[m, 1]) <= half
+                        and abs(r2 + g[j] * v[m, 2]) <= half):
+                    if fill:
+                        grid[w] = (m * k + i) * k + j
+                        w += 1
+                    n += 1
+        counts[m] = n
 
 
 def boundary_distance(points: np.ndarray, normal: np.ndarray, size: float) -> np.ndarray:

@@ -16,6 +16,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .geometry import PatchProbes, boundary_distance, cube_polygons, patch_probes, polygon_distance
+from .jit import compiled
 from .probe_search import probe_errors
 from .segments import concat_ranges
 from .timing import StageTimes
@@ -105,30 +106,44 @@ def _surface_to_patch(pts, nrm, cfg: PatchErrorSettings, centre, normal, offset,
                       verts):
     """surface->patch of every octant (its points' largest distance to its polygon, each point's
     sampling gap extrapolated along its own tangent plane), and what the probes reuse: the points
-    in their octants' local frames and their column indices."""
+    in their octants' local frames (3, P) and their column indices."""
     idx = concat_ranges(start, count)
-    whole = len(idx) == pts.shape[1]          # every point, in order: no gather needed
-    nx, ny, nz, cx, cy, cz, off = (np.repeat(c, count) for c in (*normal.T, *centre.T, offset))
-    local = [(pts[c] if whole else pts[c][idx]) - cc for c, cc in enumerate((cx, cy, cz))]
-    s = local[0] * nx + local[1] * ny
-    s += local[2] * nz
-    s += off
-    dist = np.abs(s)
-    lim = size * (0.5 + 1e-9)
-    outside = np.zeros(len(s), dtype=bool)
-    for lc, nc in zip(local, (nx, ny, nz)):
-        outside |= np.abs(lc - s * nc) > lim
+    local, dist, term = np.empty((3, len(idx))), np.empty(len(idx)), np.empty(len(idx))
+    outside = np.empty(len(idx), np.bool_)
+    _point_distances(pts, nrm, centre, normal, offset, start, count, size * (0.5 + 1e-9), cfg.gap, local, dist,
+                     term, outside)
     o = np.flatnonzero(outside)
     if len(o):
         oo = owner[o]
-        dist[o] = polygon_distance(np.stack([lc[o] for lc in local], axis=1), normal[oo], offset[oo], verts[oo])
-    # Each sample stands for the surface within the sampling gap around it: extrapolate its
-    # distance along its own tangent plane, which leaves the patch at angle theta.
-    nn = [nrm[c] if whole else nrm[c][idx] for c in range(3)]
-    cos = nn[0] * nx + nn[1] * ny
-    cos += nn[2] * nz
-    dist += cfg.gap * np.sqrt(np.maximum(1.0 - cos * cos, 0.0))
+        dist[o] = polygon_distance(np.ascontiguousarray(local[:, o].T), normal[oo], offset[oo], verts[oo])
+    dist += term
     return np.maximum.reduceat(dist, np.cumsum(count) - count), local, idx
+
+
+@compiled
+def _point_distances(pts, nrm, centre, normal, offset, start, count, lim: float, gap: float, local, dist, term,
+                     outside) -> None:
+    """Per point of each octant (in octant order): its coordinates about the octant's centre, its
+    distance to the octant's plane, whether its foot on the plane leaves the cube (``lim``: half
+    the side; then :func:`polygon_distance` measures it), and its sampling gap's part
+    ``gap * sin(angle between its normal and the plane's)``; as the NumPy formulation computed
+    them, operation for operation."""
+    r = 0
+    for i in range(len(start)):
+        n0, n1, n2, off = normal[i, 0], normal[i, 1], normal[i, 2], offset[i]
+        for col in range(start[i], start[i] + count[i]):
+            l0, l1, l2 = pts[0, col] - centre[i, 0], pts[1, col] - centre[i, 1], pts[2, col] - centre[i, 2]
+            s = l0 * n0 + l1 * n1
+            s += l2 * n2
+            s += off
+            local[0, r], local[1, r], local[2, r] = l0, l1, l2
+            dist[r] = abs(s)
+            outside[r] = abs(l0 - s * n0) > lim or abs(l1 - s * n1) > lim or abs(l2 - s * n2) > lim
+            cos = nrm[0, col] * n0 + nrm[1, col] * n1
+            cos += nrm[2, col] * n2
+            sin2 = 1.0 - cos * cos
+            term[r] = gap * np.sqrt(sin2 if (sin2 >= 0.0 or sin2 != sin2) else 0.0)
+            r += 1
 
 
 def _probes_in_tree(err, pts, idx, owner, probes: PatchProbes, todo, tol0, edge_tol0, centre, normal, size: float,

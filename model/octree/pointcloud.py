@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import OctreeInputError
-from .geometry import bounding_box, eigenvector, symmetric_eigen
+from .geometry import bounding_box, smallest_eigenvectors
 from .knn import nearest
 from .octree import Normalization
 from .orient import covariances, neighbour_graph, propagate_signs, spanning_tree, stable_order
@@ -155,7 +155,7 @@ def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
     points = np.ascontiguousarray(points, dtype=np.float64)
     nn = nearest(points, k)
     cov = covariances(points, nn)
-    normals = eigenvector(cov, symmetric_eigen(cov)[2])
+    normals = smallest_eigenvectors(cov)[0]
     if k < 2:
         return normals
     rows, cols, weights = neighbour_graph(nn, normals)

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .jit import compiled
+
 
 def concat_ranges(start: np.ndarray, count: np.ndarray) -> np.ndarray:
     """Concatenation of ``arange(s, s + c)`` for all pairs, without a Python loop."""
@@ -20,26 +22,68 @@ def concat_ranges(start: np.ndarray, count: np.ndarray) -> np.ndarray:
 
 def segment_sums(rows: np.ndarray, new: np.ndarray, n: int) -> np.ndarray:
     """Sums (R, n) of each row over consecutive segments (``new`` marks each segment's start),
-    equal bit for bit to ``np.add.reduceat(rows, starts, axis=1)`` and faster on short segments.
+    equal bit for bit to ``np.add.reduceat(rows, starts, axis=1)``, compiled.
 
-    reduceat adds a segment as ``x0 + (((0 + x1) + x2) + ...)`` when it has at most 8 elements
-    (longer ones are summed pairwise); ``bincount`` adds in order from 0, so the heads plus the
-    bincount of the tails give the same numbers.  Segments over 8 elements use reduceat itself.
-    The equality keeps planes, and with them every label and patch error, unchanged by this
-    speed-up: the patch error is not continuous in the plane where a polygon is degenerate.
+    reduceat adds a segment as its first element plus NumPy's pairwise sum of the rest
+    (:func:`_pairwise`).  The equality keeps planes, and with them every label and patch error,
+    unchanged by this speed-up: the patch error is not continuous in the plane where a polygon is
+    degenerate.
     """
     starts = np.flatnonzero(new)
-    count = np.diff(np.r_[starts, rows.shape[1]])
-    long_ = np.flatnonzero(count > 8)
-    if count[long_].sum() * 2 > rows.shape[1]:      # mostly long segments (dense voxels)
-        return np.add.reduceat(rows, starts, axis=1)
-    tail = np.flatnonzero(~new)
-    st = (np.cumsum(new) - 1)[tail]
-    out = np.take(rows, starts, axis=1)
-    for r, row in enumerate(rows):           # row by row: no second copy of all rows
-        out[r] += np.bincount(st, weights=row[tail], minlength=n)
-    if len(long_):
-        idx = concat_ranges(starts[long_], count[long_])
-        out[:, long_] = np.add.reduceat(np.take(rows, idx, axis=1),
-                                        np.cumsum(count[long_]) - count[long_], axis=1)
+    if len(starts) != n:
+        raise ValueError(f"new marks {len(starts)} segments, expected {n}")
+    out = np.empty((rows.shape[0], n))
+    _segment_sums(np.ascontiguousarray(rows, dtype=np.float64), starts, out)
     return out
+
+
+@compiled
+def _segment_sums(rows: np.ndarray, starts: np.ndarray, out: np.ndarray) -> None:
+    """Row by row, segment by segment (segment ``j`` from ``starts[j]`` to the next start)."""
+    width = rows.shape[1]
+    for r in range(rows.shape[0]):
+        row = rows[r]
+        for j in range(len(starts)):
+            a = starts[j]
+            b = starts[j + 1] if j + 1 < len(starts) else width
+            if b - a <= 8:                      # the short runs of most octants: one by one
+                total = 0.0
+                for i in range(a + 1, b):
+                    total += row[i]
+                out[r, j] = row[a] + total
+            else:
+                out[r, j] = row[a] + _pairwise(row, a + 1, b - a - 1)
+
+
+@compiled
+def _pairwise(x: np.ndarray, first: int, n: int) -> float:
+    """NumPy's pairwise sum of ``x[first:first + n]`` (what a contiguous add-reduction adds to its
+    first element): below 8 values one by one from 0; up to 128, eight running sums combined as a
+    tree, then the rest one by one; above, the two halves (the first a multiple of 8) summed so."""
+    if n < 8:
+        total = 0.0
+        for i in range(first, first + n):
+            total += x[i]
+        return total
+    if n > 128:
+        half = n // 2
+        half -= half % 8
+        return _pairwise(x, first, half) + _pairwise(x, first + half, n - half)
+    r0, r1, r2, r3 = x[first], x[first + 1], x[first + 2], x[first + 3]
+    r4, r5, r6, r7 = x[first + 4], x[first + 5], x[first + 6], x[first + 7]
+    i = 8
+    while i < n - n % 8:
+        r0 += x[first + i]
+        r1 += x[first + i + 1]
+        r2 += x[first + i + 2]
+        r3 += x[first + i + 3]
+        r4 += x[first + i + 4]
+        r5 += x[first + i + 5]
+        r6 += x[first + i + 6]
+        r7 += x[first + i + 7]
+        i += 8
+    total = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        total += x[first + i]
+        i += 1
+    return total

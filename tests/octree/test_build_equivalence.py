@@ -93,7 +93,9 @@ def test_fast_build_matches_the_plain_formulation_on_every_test_mesh(name):
 
 def test_segment_sums_equal_reduceat_bit_for_bit():
     rng = np.random.default_rng(0)
-    lengths = np.concatenate([rng.integers(1, 9, 3000), rng.integers(9, 40, 50), [1, 8, 9, 100]])
+    # short runs (one by one), up to 128 (eight running sums) and beyond (halves, recursively)
+    lengths = np.concatenate([rng.integers(1, 9, 3000), rng.integers(9, 40, 50), rng.integers(100, 3000, 20),
+                              [1, 8, 9, 100, 128, 129, 130, 136, 137, 257, 1000, 5000]])
     rng.shuffle(lengths)
     starts = np.cumsum(lengths) - lengths
     new = np.zeros(lengths.sum(), dtype=bool)

@@ -12,9 +12,10 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from model.data import generate, scan
-from model.octree.geometry import eigenvector, symmetric_eigen
 from model.octree.orient import stable_order
 from model.octree.pointcloud import estimate_normals
+
+from .reference_planes import eigenvector, symmetric_eigen
 
 
 def scipy_normals(points: np.ndarray, k: int = 16) -> np.ndarray:

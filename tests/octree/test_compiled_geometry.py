@@ -1,0 +1,136 @@
+"""The compiled plane fits, polygon distances and probe grids of model.octree.geometry give what
+the NumPy formulation they replaced gives (tests/octree/reference_planes.py): the same bits where
+that formulation's order is fixed (element-wise arithmetic, NumPy's own arc cosine and cosines,
+reductions across rows), and the same numbers within rounding where NumPy's einsum picks its order
+by the CPU's instruction set (the polygon distances)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from model.octree.geometry import cube_polygons, fit_planes, patch_probes, plane_basis, polygon_distance, smallest_eigenvectors
+
+from . import reference_planes as ref
+
+
+def symmetric(kind: str, m: int, rng: np.random.Generator) -> np.ndarray:
+    """(6, m) components of symmetric 3x3 matrices: general, planar (a double root), lines and
+    zeros over many scales, small integers (exact ties)."""
+    if kind == "general":
+        a = rng.normal(size=(m, 3, 3))
+        c = a @ a.transpose(0, 2, 1)
+    elif kind == "planar":
+        u = rng.normal(size=(m, 3))
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        c = np.eye(3)[None] * rng.random((m, 1, 1)) - 0.999999 * u[:, :, None] * u[:, None, :] * rng.random((m, 1, 1))
+    elif kind == "lines":
+        u = rng.normal(size=(m, 3))
+        c = u[:, :, None] * u[:, None, :] * 10.0 ** rng.integers(-12, 3, (m, 1, 1))
+        c[::7] = 0.0
+    else:
+        a = rng.integers(-3, 4, size=(m, 3, 3)).astype(float)
+        c = a @ a.transpose(0, 2, 1)
+    return np.stack([c[:, 0, 0], c[:, 0, 1], c[:, 0, 2], c[:, 1, 1], c[:, 1, 2], c[:, 2, 2]])
+
+
+@pytest.mark.parametrize("kind", ["general", "planar", "lines", "integers"])
+def test_smallest_eigenvectors_are_the_numpy_formulation_s_bit_for_bit(kind):
+    c = symmetric(kind, 20_000, np.random.default_rng(len(kind)))
+    values = ref.symmetric_eigen(c)
+    first = ref.eigenvector(c, values[2])
+    refined = ref.eigenvector(c, ref._rayleigh(c, first))
+    got, got_values = smallest_eigenvectors(c)
+    assert np.array_equal(got_values, values, equal_nan=True)
+    assert np.array_equal(got, first, equal_nan=True)
+    assert np.array_equal(smallest_eigenvectors(c, refine=True)[0], refined, equal_nan=True)
+    if kind == "general":          # and they are eigenvectors of the smallest eigenvalues
+        mats = np.stack([c[[0, 1, 2]], c[[1, 3, 4]], c[[2, 4, 5]]]).transpose(2, 0, 1)
+        lam = np.linalg.eigvalsh(mats)[:, 0]
+        residual = np.einsum("mij,mj->mi", mats, got) - lam[:, None] * got
+        assert np.abs(residual).max() < 1e-6 * np.abs(lam).max()
+
+
+def moments(m: int, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+    """Point moments of m octants of 1-5 points: scattered, collinear (two points are always a
+    line), and normal sums that vanish or lie along the line (the rare branch)."""
+    count = rng.integers(1, 6, m)
+    pts = [rng.normal(size=(n, 3)) * 0.01 for n in count]
+    for i in range(0, m, 5):                   # collinear
+        pts[i] = rng.normal(size=(1, 3)) * 0.01 + rng.normal(size=(count[i], 1)) * rng.normal(size=(1, 3)) * 0.01
+    nrm = [rng.normal(size=(n, 3)) for n in count]
+    for i in range(0, m, 11):                  # normals cancelling out
+        nrm[i] = np.zeros((count[i], 3))
+    for i in range(3, m, 13):                  # the normal sum along the points' line
+        d = pts[i][-1] - pts[i][0]
+        nrm[i] = np.repeat(d[None] / max(np.linalg.norm(d), 1e-300), count[i], 0)
+    s1 = np.stack([p.sum(0) for p in pts], 1)
+    s2 = np.stack([np.array([(p[:, a] * p[:, b]).sum() for a, b in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))])
+                   for p in pts], 1)
+    nsum = np.stack([n.sum(0) for n in nrm], 1)
+    return count, s1, s2, nsum
+
+
+def test_fit_planes_are_the_numpy_formulation_s_bit_for_bit():
+    count, s1, s2, nsum = moments(6000, np.random.default_rng(3))
+    got, want = fit_planes(count, s1, s2, nsum), ref.fit_planes(count, s1, s2, nsum)
+    for a, b in zip(got, want):
+        assert np.array_equal(a, b, equal_nan=True)
+    normal, _, degenerate = got
+    assert np.allclose(np.linalg.norm(normal, axis=1), 1.0)
+    assert degenerate[count < 3].all() and degenerate[::5].all()      # two points and collinear ones
+
+
+def polygons(m: int, rng: np.random.Generator):
+    normal = rng.normal(size=(m, 3))
+    normal[::4] = np.round(normal[::4])                 # planes along the axes
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    size = 10.0 ** rng.uniform(-3, 0)
+    offset = rng.uniform(-0.9, 0.9, m) * size
+    verts, count = cube_polygons(normal, offset, size)
+    keep = count > 0
+    return normal[keep], offset[keep], verts[keep], count[keep], size
+
+
+def test_polygon_distances_are_the_numpy_formulation_s_within_rounding():
+    rng = np.random.default_rng(4)
+    normal, offset, verts, _, size = polygons(20_000, rng)
+    pts = rng.uniform(-0.6, 0.6, (len(normal), 3)) * size
+    pts[:500] = verts[:500, 0]                          # on a vertex: distance to the plane only
+    got = polygon_distance(pts, normal, offset, verts)
+    assert np.abs(got - ref.polygon_distance(pts, normal, offset, verts)).max() <= 1e-15 * size
+    assert got[:500].max() <= 1e-15 * size
+
+
+def test_polygon_distance_of_a_square():
+    square = np.array([[[-1.0, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0], [-1, 1, 0], [-1, 1, 0]]])
+    n, off = np.array([[0.0, 0, 1]]), np.array([0.0])
+    for p, d in (((0.5, 0.2, 3.0), 3.0), ((4.0, 0.0, 0.0), 3.0), ((4.0, 5.0, 0.0), 5.0), ((4.0, 5.0, 12.0), 13.0)):
+        assert polygon_distance(np.array([p]), n, off, square)[0] == pytest.approx(d, rel=1e-15)
+
+
+def grid_reference(normal, offset, size, spacing):
+    """The probes inside each cube as the NumPy formulation found them."""
+    u, v = plane_basis(normal)
+    radius = np.sqrt(3.0) / 2.0 * size
+    k = int(np.ceil(2.0 * radius / spacing)) + 1
+    g = np.linspace(-radius, radius, k)
+    foot = -offset[:, None] * normal
+    half = size / 2.0 * (1.0 + 1e-9)
+    inside = None
+    for c in range(3):
+        r = foot[:, c, None] + g[None, :] * u[:, c, None]
+        q = g[None, :] * v[:, c, None]
+        ok = np.abs(r[:, :, None] + q[:, None, :]) <= half
+        inside = ok if inside is None else inside & ok
+    return np.flatnonzero(inside)
+
+
+@pytest.mark.parametrize("cells", [1, 4, 32])
+def test_probe_grids_are_the_numpy_formulation_s(cells):
+    normal, offset, verts, count, size = polygons(3000, np.random.default_rng(cells))
+    spacing = size / cells
+    probes = patch_probes(normal, offset, verts, count, size, spacing)
+    want = grid_reference(normal, offset, size, spacing)
+    assert len(want) >= len(normal) // 2
+    assert np.array_equal(probes.grid, want)
