@@ -8,6 +8,7 @@ import numpy as np
 import trimesh
 
 from .geometry import MAX_POLYGON, cube_polygons
+from .jit import compiled
 from .octree import LEAF, Octree
 
 DEPTH_COLORS = np.array([
@@ -83,19 +84,51 @@ class PatchMesh:
 
 def patch_mesh(octree: Octree, world: bool = True) -> PatchMesh:
     """The leaf patches' triangle mesh, in the input's coordinates (one shape) unless ``world`` is
-    False; the arrays every mesh writer starts from."""
+    False; the arrays every mesh writer starts from.  The patches of :func:`leaf_patches` in their
+    order, each polygon's vertices in order and its fan (0, i, i + 1), written level by level by
+    one compiled pass (the vertices ``(polygon + centre - 0.5) * scale + center`` in world
+    coordinates, as :meth:`Normalization.to_world` computes them)."""
     if world and octree.batch_size != 1:
         raise ValueError("world coordinates need a single-shape octree; pass world=False")
-    patches = leaf_patches(octree)
-    verts, faces = patch_triangles(patches)
-    used = np.flatnonzero((np.arange(MAX_POLYGON)[None] < patches.count[:, None]).ravel())
-    remap = np.full(len(verts), -1, np.int64)
-    remap[used] = np.arange(len(used))
-    verts = verts[used]                                  # the padding never reaches the output
-    if world:
-        verts = octree.normalizations[0].to_world(verts)
-    return PatchMesh(verts, remap[faces] if len(faces) else np.zeros((0, 3), np.int64),
-                     np.repeat(patches.depth, MAX_POLYGON)[used])
+    levels = []
+    for lv in octree.levels:
+        sel = np.flatnonzero(lv.label == LEAF)
+        if len(sel):
+            normal = lv.plane[sel, :3].astype(np.float64)
+            normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+            verts, count = cube_polygons(normal, lv.plane_offsets(sel), lv.size)
+            levels.append((lv.depth, verts, count, lv.centers(sel)))
+    n_verts = sum(int(count.sum()) for _, _, count, _ in levels)
+    n_faces = sum(int(np.maximum(count - 2, 0).sum()) for _, _, count, _ in levels)
+    vertices, faces = np.empty((n_verts, 3)), np.empty((n_faces, 3), np.int64)
+    depth = np.empty(n_verts, np.int64)
+    norm = octree.normalizations[0] if world else None
+    center = np.zeros(3) if norm is None else np.asarray(norm.center, dtype=np.float64)
+    scale = 1.0 if norm is None else float(norm.scale)
+    v = f = 0
+    for d, verts, count, centre in levels:
+        nv, nf = _write_patches(verts, count, centre, world, center, scale, v, f, vertices, faces)
+        depth[v:v + nv] = d
+        v, f = v + nv, f + nf
+    return PatchMesh(vertices, faces, depth)
+
+
+@compiled
+def _write_patches(verts, count, centre, world, center, scale, v, f, vertices, faces) -> tuple[int, int]:
+    """One level's polygons into ``vertices`` from row ``v`` and their fans into ``faces`` from row
+    ``f``; returns how many of each were written."""
+    v0, f0 = v, f
+    for i in range(len(count)):
+        first = v
+        for j in range(count[i]):
+            for a in range(3):
+                x = verts[i, j, a] + centre[i, a]
+                vertices[v, a] = (x - 0.5) * scale + center[a] if world else x
+            v += 1
+        for j in range(1, count[i] - 1):
+            faces[f, 0], faces[f, 1], faces[f, 2] = first, first + j, first + j + 1
+            f += 1
+    return v - v0, f - f0
 
 
 def depth_colors(depth: np.ndarray) -> np.ndarray:

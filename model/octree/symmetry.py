@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geometry import bounding_box
+from .jit import compiled
 from .knn import NeighbourGrid
 from .pointcloud import PointCloud
 
@@ -137,11 +138,25 @@ def _coarse_supports(points: np.ndarray, sample: np.ndarray, axis: int, offsets:
     grid = _dilate(grid, (int(np.ceil(tol / step)), 1, 1))
     si, sj, sk = cells(sample)
     across = np.minimum(sj, grid.shape[1] - 1) * grid.shape[2] + np.minimum(sk, grid.shape[2] - 1)
-    mirrored = 2 * np.arange(bins)[:, None] - si[None] - 1 + bins            # (candidates, S), in [0, 3 bins)
-    hit = np.take(grid.reshape(-1), mirrored * (grid.shape[1] * grid.shape[2]) + across[None])
-    off_plane = np.abs(sample[None, :, axis] - offsets[:, None]) > 2 * tol
-    counted = off_plane.sum(1)
-    return np.where(counted > 0, (hit & off_plane).sum(1) / np.maximum(counted, 1), 0.0)
+    hits, counted = np.zeros(bins, np.int64), np.zeros(bins, np.int64)
+    _count_hits(grid.reshape(grid.shape[0], -1), si, across, np.ascontiguousarray(sample[:, axis]), offsets,
+                2 * tol, hits, counted)
+    return np.where(counted > 0, hits / np.maximum(counted, 1), 0.0)
+
+
+@compiled
+def _count_hits(grid, si, across, x, offsets, gap: float, hits, counted) -> None:
+    """Per candidate ``k``: how many sample points lie more than ``gap`` off its plane
+    (``counted``) and how many of those have their mirror image's cell occupied (``hits``); the
+    image of bin ``i`` across the plane ``k`` steps from the minimum is bin ``2k - i - 1`` (the
+    grid has ``bins`` rows of empty space each side)."""
+    bins = len(offsets)
+    for k in range(bins):
+        for s in range(len(si)):
+            if abs(x[s] - offsets[k]) > gap:
+                counted[k] += 1
+                if grid[2 * k - si[s] - 1 + bins, across[s]]:
+                    hits[k] += 1
 
 
 def find_mirror(points: np.ndarray, axis: int = 0, tolerance: float = TOLERANCE, candidates: int = 81,

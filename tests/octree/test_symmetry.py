@@ -14,6 +14,7 @@ from model.octree.symmetry import (
     TOLERANCE,
     Mirror,
     _coarse_supports,
+    _dilate,
     find_mirror,
     is_sheet,
     mirror_cloud,
@@ -171,3 +172,35 @@ def test_mirror_cloud_of_a_given_plane():
     out = mirror_cloud(cloud, Mirror(0, 2.0, 1.0))
     assert np.allclose(out.points[2:], [[3.0, 2.0, 3.0], [0.0, 5.0, 6.0]])
     assert np.allclose(out.normals[2:], [[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def test_the_voxel_scores_are_the_numpy_formulation_s(chair):
+    """The compiled count of mirror images landing in occupied cells equals the NumPy gather it
+    replaced, candidate by candidate."""
+    pts, _ = chair
+    part = pts[seen_part(pts, 0.3, 0.5)]
+    lo, hi = part.min(0), part.max(0)
+    offsets = np.linspace(lo[0], hi[0], 81)
+    tol = 0.01 * np.linalg.norm(hi - lo)
+    sample = part[::7]
+    other = [1, 2]
+    step, bins = float(offsets[1] - offsets[0]), len(offsets)
+
+    def cells(p):
+        i = np.minimum(((p[:, 0] - lo[0]) / step).astype(np.int64), bins - 1)
+        jk = ((p[:, other] - lo[other]) / tol).astype(np.int64)
+        return i, jk[:, 0], jk[:, 1]
+
+    i, j, k = cells(part)
+    grid = np.zeros((3 * bins, j.max() + 1, k.max() + 1), bool)
+    grid[i + bins, j, k] = True
+    grid = _dilate(grid, (int(np.ceil(tol / step)), 1, 1))
+    si, sj, sk = cells(sample)
+    across = np.minimum(sj, grid.shape[1] - 1) * grid.shape[2] + np.minimum(sk, grid.shape[2] - 1)
+    mirrored = 2 * np.arange(bins)[:, None] - si[None] - 1 + bins
+    hit = np.take(grid.reshape(-1), mirrored * (grid.shape[1] * grid.shape[2]) + across[None])
+    off_plane = np.abs(sample[None, :, 0] - offsets[:, None]) > 2 * tol
+    counted = off_plane.sum(1)
+    want = np.where(counted > 0, (hit & off_plane).sum(1) / np.maximum(counted, 1), 0.0)
+    got = _coarse_supports(part, sample, 0, offsets, tol)
+    assert np.array_equal(got, want) and want.max() > 0.5
