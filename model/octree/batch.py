@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from . import keys as morton
@@ -17,11 +19,18 @@ def merge_octrees(octrees: list[Octree], neighbors: bool = False) -> Octree:
     Keys get the batch index in their high bits; parent, child and neighbour indices are offset
     so that every table equals the per-shape table plus the node count of earlier shapes.
     Neighbour tables are merged when every input has them; otherwise ``neighbors`` builds the
-    merged octree's tables (once for the batch, not per shape).
+    merged octree's tables (once for the batch, not per shape).  A single octree is its own batch:
+    its levels' arrays are shared, not copied (a request's scan: offsetting them by zero cost 6 ms).
     """
     if not octrees:
         raise ValueError("merge_octrees needs at least one octree")
     first = octrees[0]
+    if len(octrees) == 1:
+        merged = dataclasses.replace(first, levels=[dataclasses.replace(lv) for lv in first.levels],
+                                     normalizations=list(first.normalizations))
+        if neighbors and not merged.has_neighbors:
+            build_neighbors(merged)
+        return merged
     for o in octrees[1:]:
         if (o.depth, o.full_depth, o.adaptive_depth) != (first.depth, first.full_depth, first.adaptive_depth):
             raise ValueError("octrees to merge must share depth, full_depth and adaptive_depth")

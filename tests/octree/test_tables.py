@@ -93,3 +93,20 @@ def test_split_octree_inverts_merge():
         assert not b.has_neighbors
         for la, lb in zip(a.levels, b.levels):
             assert np.array_equal(la.key, lb.key) and np.array_equal(la.child, lb.child)
+
+
+def test_a_single_octree_merged_is_itself_and_left_untouched():
+    """One octree is its own batch: the same tables as merging it beside another and taking the
+    first shape's part; asking for neighbour tables builds them on the merged tree only."""
+    a = build_octree(sphere_points(8000, seed=1), 5, neighbors=False)
+    b = build_octree(sphere_points(6000, seed=2), 5, neighbors=False)
+    single = merge_octrees([a], neighbors=True)
+    pair = merge_octrees([a, b], neighbors=True)
+    for lv_a, lv_1, lv_2 in zip(a.levels, single.levels, pair.levels):
+        n = len(lv_a)
+        assert lv_a.neighbors is None                       # the input keeps its own (absent) tables
+        for name in ("key", "label", "child", "parent", "plane", "npoints", "neighbors"):
+            got, want = getattr(lv_1, name), getattr(lv_2, name)[:n]
+            assert got.dtype == want.dtype and np.array_equal(got, want), name
+        assert np.array_equal(lv_1.error, lv_2.error[:n], equal_nan=True)
+    assert single.normalizations == a.normalizations and single.normalizations is not a.normalizations
