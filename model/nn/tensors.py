@@ -39,7 +39,7 @@ class LevelTensors:
                    split=torch.from_numpy(split.astype(np.int64)),
                    parent=torch.from_numpy(level.parent.astype(np.int64)),
                    label=torch.from_numpy(level.label.astype(np.int64)),
-                   plane=torch.from_numpy(np.ascontiguousarray(level.plane, dtype=np.float32)),
+                   plane=torch.from_numpy(np.array(level.plane, dtype=np.float32)),
                    nonempty=torch.from_numpy(level.label != EMPTY))
 
     def to(self, device: torch.device | str) -> LevelTensors:

@@ -278,7 +278,8 @@ def _place_planes(node_key: np.ndarray, nonempty: np.ndarray, normal: np.ndarray
             z |= ((key >> (3 * b)) & 1) << b
         c0, c1, c2 = (float(x) + 0.5) * size, (float(y) + 0.5) * size, (float(z) + 0.5) * size
         n0, n1, n2 = normal[j, 0], normal[j, 1], normal[j, 2]
-        off = n0 * (c0 - (centroid[j, 0] + 0.5)) + n1 * (c1 - (centroid[j, 1] + 0.5))
+        off = 0.0 + n0 * (c0 - (centroid[j, 0] + 0.5))        # NumPy's sum starts at +0.0
+        off += n1 * (c1 - (centroid[j, 1] + 0.5))
         off += n2 * (c2 - (centroid[j, 2] + 0.5))
         centre[j, 0], centre[j, 1], centre[j, 2] = c0, c1, c2
         offset[j] = off

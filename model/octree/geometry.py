@@ -149,13 +149,16 @@ def fit_planes(count: np.ndarray, s1: np.ndarray, s2: np.ndarray, nsum: np.ndarr
     ``count`` (M,), ``s1`` (3, M) sums of points, ``s2`` (6, M) sums of products xx, xy, xz,
     yy, yz, zz, ``nsum`` (3, M) sums of input normals.  Returns unit normals (M, 3), centroids
     (M, 3) and a mask of degenerate fits (a single point or collinear points), whose normal is
-    the average input normal made orthogonal to the points' line.  Three or more points: the
+    the average input normal made orthogonal to the points' line (every count at least 1, else
+    ValueError).  Three or more points: the
     smallest eigenvector of their covariance, refined by a Rayleigh step
     (:func:`smallest_eigenvectors`); a spread along the second axis below ~0.03% of the first is a
     line (or a point), no plane.  Compiled, node by node, in the order of the NumPy formulation it
     replaced (``tests/octree/reference_planes.py``: the same bits).
     """
     count = np.ascontiguousarray(count)
+    if len(count) and count.min() < 1:
+        raise ValueError(f"every plane needs at least one point, got a count of {count.min()}")
     m = len(count)
     centroid, cov = np.empty((m, 3)), np.empty((6, m))
     q, p, arg = np.empty(m), np.empty(m), np.empty(m)
@@ -246,7 +249,7 @@ def _line_normal(xx, xy, xz, yy, yz, zz, s0, s1, s2) -> tuple[bool, float, float
     d = un if un > 0 else 1.0
     u0, u1, u2 = u0 / d, u1 / d, u2 / d
     a0, a1, a2 = _unit(s0, s1, s2, 1e-300)
-    w = a0 * u0 + a1 * u1 + a2 * u2 if line else 0.0
+    w = 0.0 + a0 * u0 + a1 * u1 + a2 * u2 if line else 0.0       # NumPy's sum starts at +0.0
     a0, a1, a2 = a0 - w * u0, a1 - w * u1, a2 - w * u2
     an = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
     ok = an > 1e-12
@@ -344,7 +347,7 @@ def _polygon_distance(points, normal, offset, verts, out) -> None:
     side = np.empty(m)
     for k in range(len(points)):
         n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
-        s = points[k, 0] * n0 + points[k, 1] * n1 + points[k, 2] * n2 + offset[k]
+        s = 0.0 + points[k, 0] * n0 + points[k, 1] * n1 + points[k, 2] * n2 + offset[k]
         q0, q1, q2 = points[k, 0] - s * n0, points[k, 1] - s * n1, points[k, 2] - s * n2
         longest = 0.0
         dist2 = np.inf

@@ -47,7 +47,7 @@ def _segment_sums(rows: np.ndarray, starts: np.ndarray, out: np.ndarray) -> None
             a = starts[j]
             b = starts[j + 1] if j + 1 < len(starts) else width
             if b - a <= 8:                      # the short runs of most octants: one by one
-                total = 0.0
+                total = -0.0                    # NumPy's start: x + -0.0 is x, a -0.0 kept
                 for i in range(a + 1, b):
                     total += row[i]
                 out[r, j] = row[a] + total
@@ -59,9 +59,10 @@ def _segment_sums(rows: np.ndarray, starts: np.ndarray, out: np.ndarray) -> None
 def _pairwise(x: np.ndarray, first: int, n: int) -> float:
     """NumPy's pairwise sum of ``x[first:first + n]`` (what a contiguous add-reduction adds to its
     first element): below 8 values one by one from 0; up to 128, eight running sums combined as a
-    tree, then the rest one by one; above, the two halves (the first a multiple of 8) summed so."""
+    tree, then the rest one by one; above, the two halves (the first a multiple of 8) summed so.
+    Zeros keep their sign as NumPy's do (its running sum starts at -0.0)."""
     if n < 8:
-        total = 0.0
+        total = -0.0
         for i in range(first, first + n):
             total += x[i]
         return total

@@ -101,8 +101,10 @@ def test_segment_sums_equal_reduceat_bit_for_bit():
     new = np.zeros(lengths.sum(), dtype=bool)
     new[starts] = True
     rows = rng.normal(size=(12, len(new))) * rng.uniform(1e-3, 1e3, (12, 1))
-    got = segment_sums(rows, new, len(starts))
-    assert np.array_equal(got, np.add.reduceat(rows, starts, axis=1))
+    rows[:, rng.random(len(new)) < 0.05] = -0.0              # signed zeros, in runs of one too
+    rows[2] = np.where(rows[2] > 0, 0.0, -0.0)
+    got, want = segment_sums(rows, new, len(starts)), np.add.reduceat(rows, starts, axis=1)
+    assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
 
 
 def test_boundary_probes_cover_every_edge_on_the_cube():

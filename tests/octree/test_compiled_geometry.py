@@ -9,7 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from model.octree import keys
+from model.octree.build import _place_planes
 from model.octree.geometry import cube_polygons, fit_planes, patch_probes, plane_basis, polygon_distance, smallest_eigenvectors
+from model.octree.octree import PLANE_SCALE
 
 from . import reference_planes as ref
 
@@ -43,6 +46,7 @@ def test_smallest_eigenvectors_are_the_numpy_formulation_s_bit_for_bit(kind):
     got, got_values = smallest_eigenvectors(c)
     assert np.array_equal(got_values, values, equal_nan=True)
     assert np.array_equal(got, first, equal_nan=True)
+    assert np.array_equal(np.signbit(got), np.signbit(first))
     assert np.array_equal(smallest_eigenvectors(c, refine=True)[0], refined, equal_nan=True)
     if kind == "general":          # and they are eigenvectors of the smallest eigenvalues
         mats = np.stack([c[[0, 1, 2]], c[[1, 3, 4]], c[[2, 4, 5]]]).transpose(2, 0, 1)
@@ -76,9 +80,33 @@ def test_fit_planes_are_the_numpy_formulation_s_bit_for_bit():
     got, want = fit_planes(count, s1, s2, nsum), ref.fit_planes(count, s1, s2, nsum)
     for a, b in zip(got, want):
         assert np.array_equal(a, b, equal_nan=True)
+        assert np.array_equal(np.signbit(a), np.signbit(b))           # zeros keep their sign too
     normal, _, degenerate = got
     assert np.allclose(np.linalg.norm(normal, axis=1), 1.0)
     assert degenerate[count < 3].all() and degenerate[::5].all()      # two points and collinear ones
+
+
+def test_fit_planes_keep_the_sign_of_zeros_and_refuse_empty_octants():
+    """Axis-aligned points and normals give signed zeros; NumPy's sums start at +0.0 (and its
+    reductions at -0.0): the kernels' must give the same signs.  An octant without points has no
+    plane."""
+    count, s1, s2, nsum = moments(400, np.random.default_rng(7))
+    s1[1], s2[[1, 3, 4]], nsum[2] = -0.0, -0.0, -0.0            # every point on y = 0, normals in that plane
+    nsum[1, ::3] = -0.0
+    got, want = fit_planes(count, s1, s2, nsum), ref.fit_planes(count, s1, s2, nsum)
+    assert (got[0] == 0).any()
+    for a, b in zip(got, want):
+        assert np.array_equal(a, b, equal_nan=True) and np.array_equal(np.signbit(a), np.signbit(b))
+    # two points on the x axis: the normal sum's part along the line is a sum of -0.0 terms
+    h = float.fromhex
+    two = (np.array([2]), np.array([[h("0x1.7852f4c9381c3p-7")], [-0.0], [-0.0]]),
+           np.array([[h("0x1.c88bffd712f06p-14")], [h("0x1.93cc3912dcb0ap-16")], [-0.0], [-0.0], [-0.0],
+                     [h("0x1.2791b4acf350cp-13")]]),
+           np.array([[h("-0x1.3cefe8dd4eab3p-1")], [h("0x1.08a5d2b06e6cfp-1")], [-0.0]]))
+    got, want = fit_planes(*two)[0], ref.fit_planes(*two)[0]
+    assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
+    with pytest.raises(ValueError, match="at least one point"):
+        fit_planes(np.array([2, 0]), s1[:, :2], s2[:, :2], nsum[:, :2])
 
 
 def polygons(m: int, rng: np.random.Generator):
@@ -134,3 +162,26 @@ def test_probe_grids_are_the_numpy_formulation_s(cells):
     want = grid_reference(normal, offset, size, spacing)
     assert len(want) >= len(normal) // 2
     assert np.array_equal(probes.grid, want)
+
+
+def test_plane_offsets_are_the_numpy_formulation_s_with_the_sign_of_zeros():
+    """The build's planes (centre from the key, offset ``n . (centre - (centroid + 0.5))``, stored
+    as float32 over ``PLANE_SCALE * size``): the NumPy formulation's numbers and zero signs."""
+    rng = np.random.default_rng(8)
+    depth, m = 6, 3000
+    key = keys.encode(rng.integers(0, 1 << depth, (m, 3)), rng.integers(0, 3, m))    # batch bits set too
+    size = 1.0 / (1 << depth)
+    normal = rng.normal(size=(m, 3))
+    normal[::4] = np.where(rng.random((len(normal[::4]), 3)) < 0.5, -0.0, 1.0) * np.sign(normal[::4])
+    centre = (keys.decode(key)[0] + 0.5) * size
+    centroid = centre - 0.5 + rng.normal(size=(m, 3)) * size * 0.1
+    centroid[::3] = centre[::3] - 0.5                        # planes through the centre: offsets of zero
+    nonempty = np.ones(m, bool)
+    got_centre, got_offset, plane = np.empty((m, 3)), np.empty(m), np.zeros((m, 4), np.float32)
+    _place_planes(key, nonempty, normal, centroid, size, PLANE_SCALE * size, got_centre, got_offset, plane)
+    offset = (normal * (centre - (centroid + 0.5))).sum(1)
+    assert np.array_equal(got_centre, centre) and np.array_equal(got_offset, offset)
+    want = np.zeros((m, 4), np.float32)
+    want[:, :3], want[:, 3] = normal, offset / (PLANE_SCALE * size)
+    assert np.array_equal(plane, want) and np.array_equal(np.signbit(plane), np.signbit(want))
+    assert (offset[::3] == 0).all()
