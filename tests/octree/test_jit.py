@@ -54,7 +54,8 @@ round twice."""
 KERNELS = """
 import numba, numpy as np, warnings
 warnings.simplefilter("ignore")
-from model.octree import build_octree, fuse, geometry, knn, orient, probe_search
+from model.octree import build, build_octree, fuse, geometry, knn, orient, patch_error, patches, probe_search, segments
+from model.octree import symmetry
 from model.octree.pointcloud import estimate_normals
 from model.octree.symmetry import find_mirror
 from model.surface import clusters, watertight_mesh
@@ -63,6 +64,7 @@ mask.bilinear_blend(np.ones((16, 16), np.float32), np.ones((16, 16), np.float32)
 p = np.random.default_rng(0).random((3000, 3))
 estimate_normals(p); find_mirror(p); t = build_octree((p, None), 6)
 fuse.keep_scan(t, build_octree((p[:1500], None), 6))
+patches.patch_mesh(t)
 s = np.random.default_rng(1).normal(size=(20000, 3))
 s /= np.linalg.norm(s, axis=1, keepdims=True)
 watertight_mesh(build_octree((s, s.copy()), 5, neighbors=False))
@@ -76,7 +78,8 @@ def contracted(a, b, c):      # the detector's own check: asked to, the compiler
 
 x = np.ones(8)
 contracted(x, x, x)
-kernels = [f for m in (knn, probe_search, orient, geometry, clusters, fuse, mask) for f in vars(m).values()
+kernels = [f for m in (knn, probe_search, orient, geometry, clusters, fuse, mask, build, patch_error, segments, patches,
+                        symmetry) for f in vars(m).values()
            if hasattr(f, "inspect_asm")]
 for f in kernels + [contracted]:
     for sig in f.signatures:
@@ -99,7 +102,8 @@ def test_no_kernel_fuses_a_multiply_and_an_add(tmp_path):
         name, _, asm = part.partition("\n")
         listings[name] = listings.get(name, "") + asm
     assert {"_query", "_within", "_grid_probes", "_edge_probes", "covariance_rows", "_cube_polygons",
-            "_nearest_on_fans", "_walk", "_blend"} <= set(listings)
+            "_nearest_on_fans", "_walk", "_blend", "_eigen_vectors", "_plane_normals", "_polygon_distance",
+            "_place_planes", "_point_distances", "_segment_sums", "_write_patches", "radix_order"} <= set(listings)
     fused = {name: [op for op in FUSED if op in asm] for name, asm in listings.items()}
     assert not any(ops for name, ops in fused.items() if name != "contracted"), fused
     cpu = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""

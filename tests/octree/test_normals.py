@@ -12,7 +12,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from model.data import generate, scan
-from model.octree.orient import stable_order
+from model.octree.orient import radix_order, stable_order
 from model.octree.pointcloud import estimate_normals
 
 from .reference_planes import eigenvector, symmetric_eigen
@@ -68,3 +68,14 @@ def test_the_stable_order_is_numpy_s_stable_argsort():
     w = np.random.default_rng(0).random(50_000)
     w[::3], w[::7] = 1e-6, 0.5                          # ties, as planar patches give
     assert np.array_equal(stable_order(w), np.argsort(w, kind="stable"))
+
+
+@pytest.mark.parametrize("bits", [0, 16, 24, 48, 64])
+def test_the_radix_order_is_numpy_s_stable_argsort_of_keys(bits):
+    """Morton keys (the octree build's sort) of every width, batch bits included, with ties."""
+    rng = np.random.default_rng(bits)
+    keys = rng.integers(0, 2 ** min(bits, 62) + 1, 30_000, dtype=np.uint64) << np.uint64(max(bits - 62, 0))
+    keys[::4] = keys[1]
+    keys[5::9] |= np.uint64(1) << np.uint64(63)
+    assert np.array_equal(radix_order(keys), np.argsort(keys, kind="stable"))
+    assert len(radix_order(keys[:0])) == 0
