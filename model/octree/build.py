@@ -14,13 +14,13 @@ import numpy as np
 
 from . import keys as morton
 from .errors import OctreeInputError
-from .geometry import fit_planes
 from .jit import compiled
 from .knn import nearest_distances
 from .neighbors import build_neighbors
 from .octree import EMPTY, LEAF, PLANE_SCALE, SPLIT, Normalization, Octree, OctreeLevel
 from .orient import radix_order
 from .patch_error import PatchErrorSettings, patch_errors
+from .planes import fit_planes
 from .pointcloud import PointCloud, normalization_of, validate
 from .segments import concat_ranges, segment_sums
 from .timing import StageTimes

@@ -7,10 +7,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import OctreeInputError
-from .geometry import bounding_box, smallest_eigenvectors
+from .geometry import bounding_box
 from .knn import nearest
 from .octree import Normalization
 from .orient import covariances, neighbour_graph, propagate_signs, spanning_tree, stable_order
+from .planes import smallest_eigenvectors
 
 CUBE_FILL = 0.96
 """The longest bounding-box edge fills this fraction of the unit cube (a margin of 2% a side)."""

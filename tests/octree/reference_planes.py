@@ -1,6 +1,7 @@
-"""The NumPy formulation of the plane fits that :mod:`model.octree.geometry` compiled (the
-trigonometric eigenvalues, the null vector as the best of three row crosses, one Rayleigh step),
-kept as the reference the compiled kernels must equal bit for bit."""
+"""The NumPy formulation that :mod:`model.octree.planes` (the plane fits: trigonometric
+eigenvalues, the null vector as the best of three row crosses, one Rayleigh step, the line
+normals) and :mod:`model.octree.geometry` (the polygon distances) compiled, kept as the reference
+the kernels must equal."""
 
 from __future__ import annotations
 

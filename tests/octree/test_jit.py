@@ -54,8 +54,8 @@ round twice."""
 KERNELS = """
 import numba, numpy as np, warnings
 warnings.simplefilter("ignore")
-from model.octree import build, build_octree, fuse, geometry, knn, orient, patch_error, patches, probe_search, segments
-from model.octree import symmetry
+from model.octree import build, build_octree, fuse, geometry, knn, orient, patch_error, patches, planes, probe_search
+from model.octree import segments, symmetry
 from model.octree.pointcloud import estimate_normals
 from model.octree.symmetry import find_mirror
 from model.surface import clusters, watertight_mesh
@@ -79,7 +79,7 @@ def contracted(a, b, c):      # the detector's own check: asked to, the compiler
 x = np.ones(8)
 contracted(x, x, x)
 kernels = [f for m in (knn, probe_search, orient, geometry, clusters, fuse, mask, build, patch_error, segments, patches,
-                        symmetry) for f in vars(m).values()
+                        planes, symmetry) for f in vars(m).values()
            if hasattr(f, "inspect_asm")]
 for f in kernels + [contracted]:
     for sig in f.signatures:
