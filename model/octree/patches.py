@@ -39,9 +39,9 @@ class PatchSet:
         return len(self.count)
 
 
-def leaf_patches(octree: Octree) -> PatchSet:
-    """The planar patch of every leaf (label LEAF) of every depth, for all shapes of the batch."""
-    parts = []
+def _level_polygons(octree: Octree):
+    """Per depth with leaves, in depth order: the level, its leaves' rows, their unit normals,
+    plane offsets and octant centres, and their polygons (:func:`cube_polygons`, about the centres)."""
     for lv in octree.levels:
         sel = np.flatnonzero(lv.label == LEAF)
         if len(sel) == 0:
@@ -49,8 +49,14 @@ def leaf_patches(octree: Octree) -> PatchSet:
         normal = lv.plane[sel, :3].astype(np.float64)
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
         offset = lv.plane_offsets(sel)
-        centre = lv.centers(sel)
         verts, count = cube_polygons(normal, offset, lv.size)
+        yield lv, sel, normal, offset, lv.centers(sel), verts, count
+
+
+def leaf_patches(octree: Octree) -> PatchSet:
+    """The planar patch of every leaf (label LEAF) of every depth, for all shapes of the batch."""
+    parts = []
+    for lv, sel, normal, offset, centre, verts, count in _level_polygons(octree):
         parts.append((verts + centre[:, None], count, normal, offset, centre,
                       np.full(len(sel), lv.size), np.full(len(sel), lv.depth),
                       lv.batch[sel], lv.error[sel].astype(np.float64)))
@@ -90,14 +96,7 @@ def patch_mesh(octree: Octree, world: bool = True) -> PatchMesh:
     coordinates, as :meth:`Normalization.to_world` computes them)."""
     if world and octree.batch_size != 1:
         raise ValueError("world coordinates need a single-shape octree; pass world=False")
-    levels = []
-    for lv in octree.levels:
-        sel = np.flatnonzero(lv.label == LEAF)
-        if len(sel):
-            normal = lv.plane[sel, :3].astype(np.float64)
-            normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
-            verts, count = cube_polygons(normal, lv.plane_offsets(sel), lv.size)
-            levels.append((lv.depth, verts, count, lv.centers(sel)))
+    levels = [(lv.depth, verts, count, centre) for lv, _, _, _, centre, verts, count in _level_polygons(octree)]
     n_verts = sum(int(count.sum()) for _, _, count, _ in levels)
     n_faces = sum(int(np.maximum(count - 2, 0).sum()) for _, _, count, _ in levels)
     vertices, faces = np.empty((n_verts, 3)), np.empty((n_faces, 3), np.int64)

@@ -145,13 +145,8 @@ def fit_planes(count: np.ndarray, s1: np.ndarray, s2: np.ndarray, nsum: np.ndarr
     q, p, arg = np.empty(m), np.empty(m), np.empty(m)
     _moment_covariances(count, s1, s2, centroid, cov, q, p, arg)
     phi = np.arccos(arg) / 3.0
-    normal, degenerate, bad = np.empty((m, 3)), np.empty(m, np.bool_), np.zeros(m, np.bool_)
-    _plane_normals(count, cov, nsum, q, p, np.cos(phi), np.cos(phi + 2.0 * np.pi / 3.0), normal, degenerate, bad)
-    if bad.any():             # the average normal vanishes or lies along the line: any direction across it
-        rows = np.flatnonzero(bad)
-        normal[rows] = _across(cov[:, rows])
-        flip = (normal[rows] * nsum[:, rows].T).sum(1) < 0
-        normal[rows[flip]] *= -1.0
+    normal, degenerate = np.empty((m, 3)), np.empty(m, np.bool_)
+    _plane_normals(count, cov, nsum, q, p, np.cos(phi), np.cos(phi + 2.0 * np.pi / 3.0), normal, degenerate)
     return normal, centroid, degenerate
 
 
@@ -183,9 +178,8 @@ def _unit(a0: float, a1: float, a2: float, floor: float) -> tuple[float, float, 
 
 
 @compiled
-def _plane_normals(count, cov, nsum, q, p, cos1, cos3, normal, degenerate, bad) -> None:
-    """Each node's oriented normal (M, 3) and whether its fit is degenerate; ``bad``: a degenerate
-    node whose average normal vanishes (or lies along its line), left to :func:`_across`."""
+def _plane_normals(count, cov, nsum, q, p, cos1, cos3, normal, degenerate) -> None:
+    """Each node's oriented normal (M, 3) and whether its fit is degenerate."""
     for i in range(len(count)):
         n0 = n1 = n2 = 0.0
         degenerate[i] = count[i] < 3
@@ -202,21 +196,22 @@ def _plane_normals(count, cov, nsum, q, p, cos1, cos3, normal, degenerate, bad) 
                 n0, n1, n2 = a0 / an, a1 / an, a2 / an
                 single = True
         if degenerate[i] and not single:
-            ok, n0, n1, n2 = _line_normal(cov[0, i], cov[1, i], cov[2, i], cov[3, i], cov[4, i], cov[5, i],
-                                          nsum[0, i], nsum[1, i], nsum[2, i])
-            bad[i] = not ok
+            n0, n1, n2 = _line_normal(cov[0, i], cov[1, i], cov[2, i], cov[3, i], cov[4, i], cov[5, i],
+                                      nsum[0, i], nsum[1, i], nsum[2, i])
         if n0 * nsum[0, i] + n1 * nsum[1, i] + n2 * nsum[2, i] < 0:
             n0, n1, n2 = -n0, -n1, -n2
         normal[i, 0], normal[i, 1], normal[i, 2] = n0, n1, n2
 
 
 @inlined
-def _line_normal(xx, xy, xz, yy, yz, zz, s0, s1, s2) -> tuple[bool, float, float, float]:
+def _line_normal(xx, xy, xz, yy, yz, zz, s0, s1, s2) -> tuple[float, float, float]:
     """A normal for points on a line (or one point): the average normal ``s`` minus its part along
     the line.  For collinear points the covariance is ``s^2 u u^T``, so its column with the largest
     diagonal entry points along the line ``u`` (coordinates are in the unit cube: 1e-20 is far
-    below any octant's size squared, so smaller spreads count as a single point).  False where
-    that leaves no direction (the average normal vanishes or lies along the line)."""
+    below any octant's size squared, so smaller spreads count as a single point).  Where that
+    leaves no direction (the average normal vanishes or lies along the line): a direction across
+    the line (across z where there is no line), the line crossed with x, or with y when the line
+    runs near x."""
     use_y = yy > xx
     use_z = zz > _nan_max(xx, yy)
     if use_z:
@@ -233,24 +228,11 @@ def _line_normal(xx, xy, xz, yy, yz, zz, s0, s1, s2) -> tuple[bool, float, float
     w = 0.0 + a0 * u0 + a1 * u1 + a2 * u2 if line else 0.0       # NumPy's sum starts at +0.0
     a0, a1, a2 = a0 - w * u0, a1 - w * u1, a2 - w * u2
     an = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-    ok = an > 1e-12
-    d = an if ok else 1.0
-    return ok, a0 / d, a1 / d, a2 / d
-
-
-def _across(cov: np.ndarray) -> np.ndarray:
-    """Unit vectors (M, 3) across each line of collinear points (``cov`` (6, M)), or along z where
-    there is no line: where the average normal leaves no direction (:func:`_line_normal`)."""
-    xx, xy, xz, yy, yz, zz = cov
-    use_y = yy > xx
-    use_z = zz > np.maximum(xx, yy)
-    u = np.stack([np.where(use_z, xz, np.where(use_y, xy, xx)),
-                  np.where(use_z, yz, np.where(use_y, yy, xy)),
-                  np.where(use_z, zz, np.where(use_y, yz, xz))])
-    un = np.sqrt((u * u).sum(0))
-    line = (np.maximum(np.maximum(xx, yy), zz) > 1e-20) & (un > 0)
-    u /= np.where(un > 0, un, 1.0)
-    ub = np.where(line, u, [[0.0], [0.0], [1.0]]).T
-    helper = np.where(np.abs(ub[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    perp = np.cross(ub, helper)
-    return perp / np.linalg.norm(perp, axis=1, keepdims=True)
+    if an > 1e-12:
+        return a0 / an, a1 / an, a2 / an
+    if not line:
+        u0, u1, u2 = 0.0, 0.0, 1.0
+    h0, h1 = (1.0, 0.0) if abs(u0) < 0.9 else (0.0, 1.0)
+    c0, c1, c2 = u1 * 0.0 - u2 * h1, u2 * h0 - u0 * 0.0, u0 * h1 - u1 * h0      # u x (h0, h1, 0)
+    cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+    return c0 / cn, c1 / cn, c2 / cn
