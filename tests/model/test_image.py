@@ -7,7 +7,7 @@ import pytest
 from PIL import Image
 
 from model.image.decode import ImageError, decode_image
-from model.image.frame import ImageSpec, load_and_prepare, object_box, prepare_image
+from model.image.frame import ImageSpec, _edge_padded, load_and_prepare, object_box, prepare_image
 
 SPEC = ImageSpec(size=32)
 
@@ -224,3 +224,39 @@ def test_heic_and_avif_photos_decode_to_the_picture_saved():
         assert got.shape == (120, 160, 4) and got[..., 3].min() == 255
         back = np.asarray(Image.fromarray(got[..., :3]).resize((16, 12), Image.Resampling.BOX), np.float32)
         assert np.abs(back - small).mean() < 12, fmt
+
+
+def _float_box(rgba: np.ndarray, tolerance: float) -> tuple[int, int, int, int] | None:
+    """The border-colour box as NumPy computes it in float32 (object_box's formulation before its kernel)."""
+    rgb = rgba[..., :3]
+    ref = np.median(np.concatenate([rgb[0], rgb[-1], rgb[:, 0], rgb[:, -1]]), axis=0).astype(np.float32)
+    mask = np.zeros(rgb.shape[:2], bool)
+    for c in range(3):
+        mask |= np.abs(rgb[..., c] - ref[c]) > tolerance
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    return None if not len(rows) else (int(rows[0]), int(cols[0]), int(rows[-1]) + 1, int(cols[-1]) + 1)
+
+
+def test_the_border_colour_box_is_the_float_formulations_to_the_pixel():
+    rng = np.random.default_rng(0)
+    for i in range(400):
+        h, w = (int(v) for v in rng.integers(1, 40, 2))
+        base = rng.integers(0, 256, 3)
+        changed = rng.random((h, w, 1)) < rng.choice([0.0, 0.05, 0.5])
+        rgb = np.clip(base + rng.integers(-30, 31, (h, w, 3)) * changed, 0, 255).astype(np.uint8)
+        rgba = np.dstack([rgb, np.full((h, w), 255, np.uint8)])
+        tolerance = (0, 1, 24, 30, 255, 23.7, 12.5)[i % 7]
+        assert object_box(rgba, tolerance) == _float_box(rgba, tolerance)
+
+
+@pytest.mark.parametrize("layout", ["rgba", "rgba strided", "rgba crop", "rgb"])
+def test_edge_padding_is_np_pad(layout):
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        h, w = (int(v) for v in rng.integers(1, 30, 2))
+        image = rng.integers(0, 256, (h + 4, w + 4, 4), dtype=np.uint8)
+        image = {"rgba": image[:h, :w].copy(), "rgba strided": image[:h, ::-1][:, :w],
+                 "rgba crop": image[2:h + 2, 1:w + 1], "rgb": np.ascontiguousarray(image[:h, :w, :3])}[layout]
+        rows, cols = tuple(int(v) for v in rng.integers(0, 9, 2)), tuple(int(v) for v in rng.integers(0, 9, 2))
+        padded = np.asarray(_edge_padded(image, rows, cols))
+        assert np.array_equal(padded, np.pad(image[..., :3], (rows, cols, (0, 0)), mode="edge"))
