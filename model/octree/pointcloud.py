@@ -10,7 +10,7 @@ from .errors import OctreeInputError
 from .geometry import bounding_box
 from .knn import nearest
 from .octree import Normalization
-from .orient import covariances, neighbour_graph, propagate_signs, spanning_tree, stable_order
+from .orient import covariances, edges_by_weight, neighbour_graph, propagate_signs, spanning_tree
 from .planes import smallest_eigenvectors
 
 CUBE_FILL = 0.96
@@ -160,8 +160,8 @@ def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
     if k < 2:
         return normals
     rows, cols, weights = neighbour_graph(nn, normals)
-    order = stable_order(weights)      # np.argsort(kind="stable"): the order (ties included) SciPy's Kruskal took
-    sign, part = propagate_signs(n, *spanning_tree(n, rows, cols, order), normals)
+    tree = spanning_tree(n, *edges_by_weight(weights, rows, cols))   # in the order (ties included) SciPy's Kruskal took
+    sign, part = propagate_signs(n, *tree, normals)
     normals = normals * sign[:, None]
     # Each part faces outward: most normals point away from its centroid.
     parts = int(part.max()) + 1

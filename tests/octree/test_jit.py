@@ -103,7 +103,8 @@ def test_no_kernel_fuses_a_multiply_and_an_add(tmp_path):
         listings[name] = listings.get(name, "") + asm
     assert {"_query", "_within", "_grid_probes", "_edge_probes", "covariance_rows", "_cube_polygons",
             "_nearest_on_fans", "_walk", "_blend", "_eigen_vectors", "_plane_normals", "_polygon_distance",
-            "_place_planes", "_point_distances", "_segment_sums", "_write_patches", "radix_order"} <= set(listings)
+            "_place_planes", "_point_distances", "_segment_sums", "_write_patches", "radix_order",
+            "sorted_payloads", "spanning_tree"} <= set(listings)
     fused = {name: [op for op in FUSED if op in asm] for name, asm in listings.items()}
     assert not any(ops for name, ops in fused.items() if name != "contracted"), fused
     cpu = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""

@@ -12,7 +12,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from model.data import generate, scan
-from model.octree.orient import radix_order, stable_order
+from model.octree.orient import edges_by_weight, radix_order, sorted_payloads
 from model.octree.pointcloud import estimate_normals
 
 from .reference_planes import eigenvector, symmetric_eigen
@@ -64,10 +64,23 @@ def test_the_normals_are_the_scipy_formulation_s_bit_for_bit(category, index):
     assert np.allclose(np.linalg.norm(ours, axis=1), 1)
 
 
-def test_the_stable_order_is_numpy_s_stable_argsort():
-    w = np.random.default_rng(0).random(50_000)
+def test_the_edges_come_in_numpy_s_stable_order_of_their_weights():
+    rng = np.random.default_rng(0)
+    w = rng.random(50_000)
     w[::3], w[::7] = 1e-6, 0.5                          # ties, as planar patches give
-    assert np.array_equal(stable_order(w), np.argsort(w, kind="stable"))
+    a, b = rng.integers(0, 2**32 - 1, (2, len(w)))       # node numbers to the packing's limit
+    order = np.argsort(w, kind="stable")
+    sa, sb = edges_by_weight(w, a, b)
+    assert np.array_equal(sa, a[order]) and np.array_equal(sb, b[order])
+    assert all(len(x) == 0 for x in edges_by_weight(w[:0], a[:0], b[:0]))
+
+
+def test_the_payloads_travel_with_their_keys():
+    rng = np.random.default_rng(1)
+    keys = rng.integers(0, 5, 20_000).astype(np.uint64) << np.uint64(40)    # ties; most passes move nothing
+    keys[::11] = np.uint64(2**64 - 1)
+    payloads = rng.integers(0, 2**63, len(keys)).astype(np.uint64) * np.uint64(2)
+    assert np.array_equal(sorted_payloads(keys, payloads), payloads[np.argsort(keys, kind="stable")])
 
 
 @pytest.mark.parametrize("bits", [0, 16, 24, 48, 64])
