@@ -245,12 +245,17 @@ def _within(points: np.ndarray, order: np.ndarray, start: np.ndarray, lo: np.nda
     """Per query, the nearest of ``points`` (sorted by cell, ``points[s]`` the input's
     ``order[s]``) nearer than ``radius`` (squared distance below ``radius * radius`` and distance
     below ``radius``): its squared distance (inf: none), index (``len(order)``: none) and whether
-    another point lies at the same distance; with ``first_only``, the first found (a hit)."""
+    another point lies at the same distance; with ``first_only``, the first found (a hit).  The
+    nearest is looked for in the query's own cell first, then in the cells about it that the
+    radius reaches, each skipped when no point of it can be as near as the nearest found (its
+    distance from the query, shrunk by the rounding margin, above it): the same nearest distance
+    and ties, so the same answers where the nearest is unique (a tie is answered by the k-d tree)."""
     n = len(order)
     r2 = radius * radius
     reach = radius * (1.0 + 1e-9) + 1e-300      # the cells a point within the radius can be binned in
     lo_c = np.empty(3, np.int64)
     hi_c = np.empty(3, np.int64)
+    own = np.empty(3, np.int64)
     for i in range(len(queries)):
         x, y, z = queries[i, 0], queries[i, 1], queries[i, 2]
         empty = False
@@ -259,34 +264,58 @@ def _within(points: np.ndarray, order: np.ndarray, start: np.ndarray, lo: np.nda
             hi_c[a] = min(int(np.floor((queries[i, a] + reach - lo[a]) / cell)), g - 1)
             if lo_c[a] > hi_c[a]:
                 empty = True
-        best, best_j, tie = np.inf, n, False
-        if not empty:
-            done = False
-            for cx in range(lo_c[0], hi_c[0] + 1):
-                for cy in range(lo_c[1], hi_c[1] + 1):
-                    for cz in range(lo_c[2], hi_c[2] + 1):
-                        cid = (cx * g + cy) * g + cz
-                        for s in range(start[cid], start[cid + 1]):
-                            dx = x - points[s, 0]
-                            dy = y - points[s, 1]
-                            dz = z - points[s, 2]
-                            d2 = dx * dx + dy * dy + dz * dz
-                            if d2 >= r2 or not np.sqrt(d2) < radius:
-                                continue
-                            if d2 < best:
-                                best, best_j, tie = d2, order[s], False
-                                if first_only:
-                                    done = True
-                                    break
-                            elif d2 == best:
-                                tie = True
-                        if done:
-                            break
-                    if done:
-                        break
+        best, best_j, tie, done = np.inf, n, False, False
+        own_cid = -1                                 # a hit ends the search: no cell is looked at first
+        if not empty and not first_only:
+            for a in range(3):
+                own[a] = min(max(int(np.floor((queries[i, a] - lo[a]) / cell)), lo_c[a]), hi_c[a])
+            own_cid = (own[0] * g + own[1]) * g + own[2]
+            best, best_j, tie, done = _within_cell(points, order, start, own_cid, x, y, z, r2, radius, first_only,
+                                                   best, best_j, tie)
+        for cx in range(lo_c[0], hi_c[0] + 1):
+            if done or empty:
+                break
+            for cy in range(lo_c[1], hi_c[1] + 1):
                 if done:
                     break
+                for cz in range(lo_c[2], hi_c[2] + 1):
+                    cid = (cx * g + cy) * g + cz
+                    if cid == own_cid:
+                        continue
+                    if best < np.inf:
+                        gap = 0.0
+                        for a, c in ((0, cx), (1, cy), (2, cz)):
+                            side = _side_gap(queries[i, a], lo[a], own[a], c - own[a], cell)
+                            gap += side * side
+                        if gap > best:
+                            continue
+                    best, best_j, tie, done = _within_cell(points, order, start, cid, x, y, z, r2, radius,
+                                                           first_only, best, best_j, tie)
+                    if done:
+                        break
         dist2[i], index[i], tied[i] = best, best_j, tie
+
+
+@inlined
+def _within_cell(points: np.ndarray, order: np.ndarray, start: np.ndarray, cid: int, x: float, y: float, z: float,
+                 r2: float, radius: float, first_only: bool, best: float, best_j: int,
+                 tie: bool) -> tuple[float, int, bool, bool]:
+    """The points of cell ``cid`` offered to :func:`_within`'s nearest so far; and whether it is
+    done (``first_only`` and a hit)."""
+    for s in range(start[cid], start[cid + 1]):
+        dx = x - points[s, 0]
+        dy = y - points[s, 1]
+        dz = z - points[s, 2]
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 >= r2 or not np.sqrt(d2) < radius:
+            continue
+        if d2 < best:
+            best, best_j, tie = d2, order[s], False
+            if first_only:
+                return best, best_j, tie, True
+        elif d2 == best:
+            tie = True
+    return best, best_j, tie, False
 
 
 class NeighbourGrid:
