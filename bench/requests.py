@@ -15,7 +15,9 @@ Cases: ``completion``, the 20,000-point scan examples/car_partial_scan.ply at th
 model's depth 7; ``photo``, a 640x480 JPEG photo of a generated chair on a procedural scene
 (background removal on); ``photo-kept``, the same photo with ``remove_background=false`` (with
 ``photo`` also asked for, the two are measured again alternating and their ratio printed);
-``render``, examples/chair.png (RGBA).
+``render``, examples/chair.png (RGBA); ``scan-200k``, a dense partial scan of 200,000 points (a
+generated car seen from 3-5 views with holes and noise, as the dataset's scans, in the scanner's
+order; binary PLY without normals), the large end of the request-speed issue's inputs.
 """
 
 from __future__ import annotations
@@ -35,8 +37,9 @@ from PIL import Image
 from bench.load import _stages, serve
 from model.cli import command_parser
 
-NETWORKS = {"completion": ("encoder", "decoder"), "photo": ("mask", "encoder", "decoder"),
-            "photo-kept": ("encoder", "decoder"), "render": ("encoder", "decoder")}
+NETWORKS = {"completion": ("encoder", "decoder"), "scan-200k": ("encoder", "decoder"),
+            "photo": ("mask", "encoder", "decoder"), "photo-kept": ("encoder", "decoder"),
+            "render": ("encoder", "decoder")}
 CASE_QUERY = {"photo-kept": "remove_background=false"}
 """Query parameters a case adds to ``--query``: ``photo-kept`` is the photo with its background kept."""
 RATIOS = (("photo", "photo-kept", 2.0),)
@@ -61,10 +64,26 @@ def photo_jpeg(seed: int = 0) -> bytes:
     return buf.getvalue()
 
 
+def dense_scan_ply(points: int = 200_000, seed: int = 0) -> bytes:
+    """A binary PLY (x y z, float32, no normals) of ``points`` points of a partial scan of a
+    generated car, scanned finely enough to hold them, kept in the scanner's order."""
+    from model.data.partial import partial_scan
+    from model.data.shapes import generate
+
+    rng = np.random.default_rng(seed)
+    pts, _ = partial_scan(generate("car", 3), rng, resolution=640)
+    keep = np.sort(rng.choice(len(pts), points, replace=False))
+    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {points}\n"
+              "property float x\nproperty float y\nproperty float z\nend_header\n").encode()
+    return header + np.ascontiguousarray(pts[keep], "<f4").tobytes()
+
+
 def case_upload(case: str) -> tuple[str, str, str, bytes]:
     """(endpoint, field, file name, bytes) of a case."""
     if case == "completion":
         return "complete", "points", "car_partial_scan.ply", Path("examples/car_partial_scan.ply").read_bytes()
+    if case == "scan-200k":
+        return "complete", "points", "dense_scan.ply", dense_scan_ply()
     if case in ("photo", "photo-kept"):
         return "image-to-shape", "image", "photo.jpg", photo_jpeg()
     return "image-to-shape", "image", "chair.png", Path("examples/chair.png").read_bytes()
