@@ -157,12 +157,15 @@ def edges_by_weight(weights: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[
     floats do): the order, ties included, SciPy's Kruskal takes them in.  The pairs travel with the
     keys through the radix passes (:func:`sorted_payloads`), so that the tree reads them in turn
     instead of looking each up through a permutation (a cache miss an edge on large clouds)."""
-    return _edges_by_weight(np.ascontiguousarray(weights, dtype=np.float64).view(np.uint64),
-                            np.ascontiguousarray(a, dtype=np.int64), np.ascontiguousarray(b, dtype=np.int64))
+    a, b = np.ascontiguousarray(a, dtype=np.int64), np.ascontiguousarray(b, dtype=np.int64)
+    if len(a) and (min(a.min(), b.min()) < 0 or max(a.max(), b.max()) >= 1 << 32):
+        raise ValueError("edges_by_weight packs node numbers in 32 bits: they must lie in 0 .. 2^32 - 1")
+    return _edges_by_weight(np.ascontiguousarray(weights, dtype=np.float64).view(np.uint64), a, b)
 
 
 @compiled
 def _edges_by_weight(keys: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`edges_by_weight` of the weights' bit patterns: each edge's ends packed in one payload."""
     packed = np.empty(len(keys), np.uint64)
     for e in range(len(keys)):
         packed[e] = (np.uint64(a[e]) << np.uint64(32)) | np.uint64(b[e])

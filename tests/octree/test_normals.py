@@ -73,6 +73,8 @@ def test_the_edges_come_in_numpy_s_stable_order_of_their_weights():
     sa, sb = edges_by_weight(w, a, b)
     assert np.array_equal(sa, a[order]) and np.array_equal(sb, b[order])
     assert all(len(x) == 0 for x in edges_by_weight(w[:0], a[:0], b[:0]))
+    with pytest.raises(ValueError, match="32 bits"):
+        edges_by_weight(w[:2], np.array([0, 2**32]), b[:2])
 
 
 def test_the_payloads_travel_with_their_keys():
