@@ -15,6 +15,8 @@ bit for bit, on clouds with many tied weights too.
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 
 from .jit import compiled
@@ -160,22 +162,19 @@ def edges_by_weight(weights: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[
     a, b = np.ascontiguousarray(a, dtype=np.int64), np.ascontiguousarray(b, dtype=np.int64)
     if len(a) and (min(a.min(), b.min()) < 0 or max(a.max(), b.max()) >= 1 << 32):
         raise ValueError("edges_by_weight packs node numbers in 32 bits: they must lie in 0 .. 2^32 - 1")
-    return _edges_by_weight(np.ascontiguousarray(weights, dtype=np.float64).view(np.uint64), a, b)
+    ends = _edges_by_weight(np.ascontiguousarray(weights, dtype=np.float64).view(np.uint64), a, b)
+    ends = ends.view(np.uint32).reshape(-1, 2)             # each edge's two 32-bit halves, read in place
+    return (ends[:, 1], ends[:, 0]) if sys.byteorder == "little" else (ends[:, 0], ends[:, 1])
 
 
 @compiled
-def _edges_by_weight(keys: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`edges_by_weight` of the weights' bit patterns: each edge's ends packed in one payload."""
+def _edges_by_weight(keys: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """:func:`edges_by_weight` of the weights' bit patterns: each edge's ends packed in one 64-bit
+    payload (``a`` above ``b``), in the sorted order."""
     packed = np.empty(len(keys), np.uint64)
     for e in range(len(keys)):
         packed[e] = (np.uint64(a[e]) << np.uint64(32)) | np.uint64(b[e])
-    packed = sorted_payloads(keys, packed)
-    sa = np.empty(len(keys), np.int64)
-    sb = np.empty(len(keys), np.int64)
-    for e in range(len(keys)):
-        sa[e] = np.int64(packed[e] >> np.uint64(32))
-        sb[e] = np.int64(packed[e] & np.uint64(0xFFFFFFFF))
-    return sa, sb
+    return sorted_payloads(keys, packed)
 
 
 @compiled
@@ -195,7 +194,8 @@ def sorted_payloads(keys: np.ndarray, payloads: np.ndarray) -> np.ndarray:
     """``payloads[np.argsort(keys, kind="stable")]`` of uint64 keys and payloads: a least-significant-
     digit radix sort, :data:`DIGIT_BITS` bits a pass, each key moving with its payload; the
     histograms of every pass counted in one reading of the keys, and a pass where every key has
-    the same digit skipped (it would move nothing).  Neither input is written."""
+    the same digit skipped (it would move nothing).  ``keys`` is not written; ``payloads`` is the
+    sort's work space (its contents are lost): the callers make it for the sort."""
     n = len(keys)
     buckets = 1 << DIGIT_BITS
     passes = (64 + DIGIT_BITS - 1) // DIGIT_BITS
@@ -207,7 +207,7 @@ def sorted_payloads(keys: np.ndarray, payloads: np.ndarray) -> np.ndarray:
             hist[p, (k >> (p * DIGIT_BITS)) & mask] += 1
     src_k, src_p = keys, payloads                # read in place by the first pass that moves anything
     dst_k, dst_p = np.empty_like(keys), np.empty_like(payloads)
-    spare_k, spare_p = np.empty(0, keys.dtype), np.empty(0, payloads.dtype)
+    spare_k = np.empty(0, keys.dtype)
     offset = np.empty(buckets, np.int64)
     for p in range(passes):
         total = 0
@@ -226,11 +226,11 @@ def sorted_payloads(keys: np.ndarray, payloads: np.ndarray) -> np.ndarray:
             dst_p[offset[d]] = src_p[j]
             offset[d] += 1
         if len(spare_k) == 0 and n:              # after the first pass: two buffers of each, in turn
-            spare_k, spare_p = np.empty_like(keys), np.empty_like(payloads)
-            src_k, src_p, dst_k, dst_p = dst_k, dst_p, spare_k, spare_p
+            spare_k = np.empty_like(keys)
+            src_k, src_p, dst_k, dst_p = dst_k, dst_p, spare_k, payloads
         else:
             src_k, src_p, dst_k, dst_p = dst_k, dst_p, src_k, src_p
-    return src_p if src_p is not payloads else payloads.copy()
+    return src_p
 
 
 @compiled

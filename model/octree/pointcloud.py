@@ -160,8 +160,9 @@ def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
     if k < 2:
         return normals
     rows, cols, weights = neighbour_graph(nn, normals)
-    tree = spanning_tree(n, *edges_by_weight(weights, rows, cols))   # in the order (ties included) SciPy's Kruskal took
-    sign, part = propagate_signs(n, *tree, normals)
+    edges = edges_by_weight(weights, rows, cols)    # in the order (ties included) SciPy's Kruskal took
+    del rows, cols, weights                         # (a large cloud's graph: their memory goes before the tree's)
+    sign, part = propagate_signs(n, *spanning_tree(n, *edges), normals)
     normals = normals * sign[:, None]
     # Each part faces outward: most normals point away from its centroid.
     parts = int(part.max()) + 1
