@@ -97,14 +97,27 @@ def _scan_cell(points: np.ndarray, order: np.ndarray, start: np.ndarray, cid: in
     return n_found
 
 
+ROUNDING = 16 * np.finfo(np.float64).eps
+"""A point lies within this share of the coordinates' size of a cell border it was binned across by
+rounding (``(p - lo) / cell`` and the border ``lo + c * cell`` round a few units in the last place)."""
+
+
+@inlined
+def _shrunk(gap: float, scale: float) -> float:
+    """A gap between a query and a cell border made a lower bound of the distance to any point
+    binned beyond it: less a share of itself and :data:`ROUNDING` of the coordinates' size ``scale``."""
+    return max(gap * (1.0 - 1e-9) - ROUNDING * scale, 0.0)
+
+
 @inlined
 def _side_gap(q: float, lo: float, c: int, o: int, cell: float) -> float:
     """Along one axis, the distance from ``q`` (in cell ``c``) to the cell ``c + o`` (0 for o = 0),
-    shrunk by the rounding margin of the cells' bounds (a point binned across a rounding)."""
+    shrunk by the rounding margin of the cells' bounds (:func:`_shrunk`: a point binned across a
+    rounding)."""
     if o == 0:
         return 0.0
     gap = lo + (c + 1) * cell - q if o > 0 else q - (lo + c * cell)
-    return max(gap, 0.0) * (1.0 - 1e-9)
+    return _shrunk(gap, abs(lo) + abs(q) + (abs(c) + 1) * cell)
 
 
 @compiled
@@ -159,7 +172,8 @@ def _query(points: np.ndarray, order: np.ndarray, start: np.ndarray, lo: np.ndar
                     gap = min(gap, queries[i, a] - (lo[a] + (c[a] - r) * cell))
                 if c[a] + r < g - 1:
                     gap = min(gap, lo[a] + (c[a] + r + 1) * cell - queries[i, a])
-            gap *= 1.0 - 1e-9                               # a point binned across a rounding
+            if gap != np.inf:                               # a point binned across a rounding
+                gap = _shrunk(gap, abs(lo[0]) + abs(lo[1]) + abs(lo[2]) + abs(x) + abs(y) + abs(z) + g * cell)
             if gap == np.inf or (n_found == k and best_d[k - 1] < gap * gap):
                 break
             r += 1
@@ -260,8 +274,9 @@ def _within(points: np.ndarray, order: np.ndarray, start: np.ndarray, lo: np.nda
         x, y, z = queries[i, 0], queries[i, 1], queries[i, 2]
         empty = False
         for a in range(3):
-            lo_c[a] = max(int(np.floor((queries[i, a] - reach - lo[a]) / cell)), 0)
-            hi_c[a] = min(int(np.floor((queries[i, a] + reach - lo[a]) / cell)), g - 1)
+            margin = reach + ROUNDING * (abs(queries[i, a]) + abs(lo[a]) + g * cell)
+            lo_c[a] = max(int(np.floor((queries[i, a] - margin - lo[a]) / cell)), 0)
+            hi_c[a] = min(int(np.floor((queries[i, a] + margin - lo[a]) / cell)), g - 1)
             if lo_c[a] > hi_c[a]:
                 empty = True
         best, best_j, tie, done = np.inf, n, False, False

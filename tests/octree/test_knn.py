@@ -89,3 +89,49 @@ def test_queries_within_a_radius_are_cKDTree_s(name):
         assert np.array_equal(got[0], dist) and np.array_equal(got[1], index)
         assert np.array_equal(grid.hits(queries, radius), dist < radius)
     assert 0 < (dist < np.inf).mean() < 1
+
+
+def _border_pairs(count: int, seed: int):
+    """Clouds with two points A and B on either side of a grid cell's border, B binned across it by
+    rounding though it lies a few units in the last place below the border as computed, and a query
+    midway (a tie) in the cell below: (points, query, the grid's cell)."""
+    rng = np.random.default_rng(seed)
+    made = 0
+    while made < count:
+        g = int(rng.integers(3, 13))
+        n = int(np.ceil(g ** 3 / 2)) + 1
+        if int(np.clip(np.cbrt(2 * n), 1, 128)) != g:          # NeighbourGrid's resolution for n points
+            continue
+        hi = float(rng.random() * 3 + 0.1)
+        cell = hi / g
+        c = int(rng.integers(0, g - 1))
+        b = B = (c + 1) * cell
+        found = False
+        for _ in range(4):
+            if int(B / cell) == c + 1:
+                q = np.nextafter(B, -1.0)
+                d = B - q
+                A = q - d
+                if q - A == d and np.floor(q / cell) == c and int(A / cell) == c and (b - q) ** 2 > d * d:
+                    found = True
+                    break
+            B = np.nextafter(B, -1.0)
+        if not found:
+            continue
+        fill = rng.random((n - 4, 3)) * [hi, 1, 1]
+        pos = int(rng.integers(0, n - 3))
+        pair = [[B, 0.5, 0.5], [A, 0.5, 0.5]] if made % 2 else [[A, 0.5, 0.5], [B, 0.5, 0.5]]
+        made += 1
+        yield np.r_[[[0.0, 0, 0], [hi, 1, 1]], fill[:pos], pair, fill[pos:]], np.array([[q, 0.5, 0.5]]), cell
+
+
+def test_points_binned_across_a_border_by_rounding_are_still_found():
+    """A cell is skipped only when its border, shrunk by the rounding of the binning (units in the
+    last place of the coordinates, not only a share of the gap), lies beyond the nearest found."""
+    for points, query, cell in _border_pairs(40, seed=1):
+        tree = cKDTree(points)
+        dist, index = tree.query(query, distance_upper_bound=0.5 * cell)
+        got = NeighbourGrid(points).nearest(query, 0.5 * cell)
+        assert np.array_equal(got[0], dist) and np.array_equal(got[1], index)
+        both = np.concatenate([points, query])                  # the query a point of the cloud: its 3 nearest
+        assert np.array_equal(nearest(both, 3)[-1], reference(both, 3)[-1])
