@@ -15,7 +15,7 @@ from PIL import Image
 from export.bundle import Bundle, BundleError, Task, load_bundle
 from export.runtime import Runtime
 from model.decode import DECODED_NORMALIZATION
-from model.image.frame import Framed, upload_mask
+from model.image.frame import Framed, frame_object, upload_mask
 from model.image.mask import MaskSpec, NoObjectError, object_mask
 from model.octree import Octree, PointCloud, build_octree, scan_octree
 from model.octree.batch import merge_octrees, split_octree
@@ -86,8 +86,9 @@ class Engine:
     def warm_up(self) -> None:
         """One inference per model (first calls allocate and optimise), one normal estimation and
         one symmetry search (their kernels compile on their first call: seconds, where no cache
-        was written; the octree build's, the scan fusion's and the photo mask's compile with the
-        models' warm-up, which also runs the foreground network once); then the service is ready."""
+        was written; the octree build's, the scan fusion's, the photo mask's and an opaque photo's
+        framing compile with the models' warm-up, which also runs the foreground network once);
+        then the service is ready."""
         points = _sphere(200)[0]
         estimate_normals(points)
         find_mirror(points)
@@ -97,6 +98,7 @@ class Engine:
             if b.task == Task.IMAGE_TO_SHAPE:
                 size = b.image_spec().size
                 latent = rt.encode_image(np.zeros((1, 3, size, size), np.float32))
+                frame_object(np.full((48, 64, 4), 255, np.uint8), b.image_spec(), remove_background="false")
                 if rt.has_foreground:                      # its network and the guided filter's kernel
                     try:
                         object_mask(np.zeros((240, 320, 3), np.uint8), rt.segment, b.mask_spec())
