@@ -235,8 +235,11 @@ def sorted_payloads(keys: np.ndarray, payloads: np.ndarray) -> np.ndarray:
 
 @compiled
 def spanning_tree(n: int, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Kruskal's minimum spanning forest of ``n`` nodes: the edges ``a[e]``-``b[e]`` taken in turn
-    (ascending weight: :func:`edges_by_weight`); returns the forest's edges (two arrays)."""
+    """Kruskal's minimum spanning forest of ``n`` nodes (fewer than 2^31: its union-find is 32-bit):
+    the edges ``a[e]``-``b[e]`` taken in turn (ascending weight: :func:`edges_by_weight`); returns
+    the forest's edges (two arrays)."""
+    if n >= 1 << 31:
+        raise ValueError("spanning_tree takes fewer than 2^31 nodes")
     parent = np.arange(n).astype(np.int32)
     size = np.ones(n, np.int32)
     ta = np.empty(max(n - 1, 0), np.int64)
