@@ -187,8 +187,10 @@ def _query(points: np.ndarray, order: np.ndarray, start: np.ndarray, lo: np.ndar
         tie = False
         row = rows[i]
         for m in range(k):
-            found[row, m] = best_i[m]
-            dist2[row, m] = best_d[m]
+            if m < found.shape[1]:
+                found[row, m] = best_i[m]
+            if m < dist2.shape[1]:
+                dist2[row, m] = best_d[m]
             if m > 0 and best_d[m] == best_d[m - 1]:
                 tie = True
         tied[row] = tie
@@ -202,14 +204,13 @@ def nearest(points: np.ndarray, k: int, threads: int = WORKERS) -> np.ndarray:
     if not 1 <= k <= n:
         raise ValueError(f"k must be in 1..{n}, got {k}")
     wide = min(k + 1, n)                         # one more: a tie for the last place shows
-    found, tied = _grid_nearest(pts, wide, threads)
-    found = found[:, :k]
+    found, tied = _grid_nearest(pts, wide, threads, keep=k)
     rows = np.flatnonzero(tied)
     if len(rows) > TIED_SHARE * n:               # a lattice: the tree answers every row at once
         return cKDTree(pts).query(pts, k=k, workers=threads)[1].reshape(n, k).astype(np.int64)
     if len(rows):
         found[rows] = cKDTree(pts).query(pts[rows], k=k, workers=threads)[1].reshape(len(rows), k)
-    return np.ascontiguousarray(found)
+    return found
 
 
 def nearest_distances(points: np.ndarray, queries: np.ndarray, k: int, threads: int = 1) -> np.ndarray:
@@ -223,16 +224,18 @@ def nearest_distances(points: np.ndarray, queries: np.ndarray, k: int, threads: 
     return np.sqrt(dist2)
 
 
-def _grid_nearest(pts: np.ndarray, k: int, threads: int) -> tuple[np.ndarray, np.ndarray]:
-    """(n, k) nearest of each of ``pts`` among them by the grid search, ties by index, and (n,)
-    whether a row holds a tie."""
-    found, _, tied = _search(pts, pts, k, threads)
+def _grid_nearest(pts: np.ndarray, k: int, threads: int, keep: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(n, keep) first of the ``k`` nearest (default all k) of each of ``pts`` among them by the grid
+    search, ties by index, and (n,) whether a row's k nearest hold a tie (their distances are not kept)."""
+    found, _, tied = _search(pts, pts, k, threads, keep, 0)
     return found, tied
 
 
-def _search(pts: np.ndarray, queries: np.ndarray, k: int, threads: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The grid search of ``queries`` among ``pts``: (m, k) indices, (m, k) squared distances,
-    (m,) tied; queries in the order of their cells, on ``threads`` threads."""
+def _search(pts: np.ndarray, queries: np.ndarray, k: int, threads: int, keep: int | None = None,
+            keep_dist: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The grid search of ``queries`` among ``pts``: (m, keep) indices and (m, keep_dist) squared
+    distances, the first of the ``k`` nearest (default all k), and (m,) whether the k hold a tie;
+    queries in the order of their cells, on ``threads`` threads."""
     lo, hi = bounding_box(pts)
     extent = float((hi - lo).max())
     cell, g, order, start = _grid(pts, lo, extent, k)
@@ -241,8 +244,8 @@ def _search(pts: np.ndarray, queries: np.ndarray, k: int, threads: int) -> tuple
     # queries that are the points themselves go in cell order (neighbouring queries, neighbouring memory)
     same = queries is pts
     q, rows = (sorted_pts, order) if same else (queries, np.arange(len(queries)))
-    found = np.empty((m, k), np.int64)
-    dist2 = np.empty((m, k))
+    found = np.empty((m, k if keep is None else keep), np.int64)
+    dist2 = np.empty((m, k if keep_dist is None else keep_dist))
     tied = np.empty(m, np.bool_)
 
     def run(a: int, b: int) -> None:
