@@ -188,32 +188,13 @@ def _inside(cube: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarr
 def _sorted_points(cube: np.ndarray, normals: np.ndarray, depth: int):
     """Points and normals as rows (3, N), and finest keys, sorted by key."""
     cube = np.ascontiguousarray(cube, dtype=np.float64)
-    key = _finest_keys(cube, 1 << depth)
+    key = morton.cell_keys(cube, 1 << depth)
     # The order of points inside a voxel is part of the result: it sets the rounding of the sums
     # and which points the spacing estimate's thinning keeps.  A stable sort keeps the input's
     # order there on every machine (the default sort's tie order depends on the CPU's SIMD
     # level: with and without AVX-512 it gave other planes, and other labels near the threshold).
     order = radix_order(key)                  # np.argsort(key, kind="stable"), 3x faster
     return _rows_in_order(cube, np.ascontiguousarray(normals, dtype=np.float64), key, order)
-
-
-@compiled
-def _finest_keys(cube: np.ndarray, res: int) -> np.ndarray:
-    """The Morton keys (:mod:`.keys`, batch 0) of the finest octants of ``cube``'s points at ``res``
-    octants a side: ``keys.encode(clip((cube * res).astype(int64), 0, res - 1))``, point by point
-    (the product truncated toward zero, as NumPy's cast does; the bits spread as ``keys`` does)."""
-    out = np.empty(len(cube), np.uint64)
-    for i in range(len(cube)):
-        key = np.uint64(0)
-        for a in range(3):
-            v = np.uint64(min(max(int(cube[i, a] * res), 0), res - 1))
-            v = (v | (v << np.uint64(16))) & np.uint64(0x0000_FF00_00FF)
-            v = (v | (v << np.uint64(8))) & np.uint64(0x00F0_0F00_F00F)
-            v = (v | (v << np.uint64(4))) & np.uint64(0x0C30_C30C_30C3)
-            v = (v | (v << np.uint64(2))) & np.uint64(0x2492_4924_9249)
-            key |= v << np.uint64(2 - a)
-        out[i] = key
-    return out
 
 
 @compiled

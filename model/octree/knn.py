@@ -164,6 +164,7 @@ def _query(points: np.ndarray, order: np.ndarray, start: np.ndarray, lo: np.ndar
                 break                                       # this cell and the rest lie beyond the k-th
             n_found = _scan_cell(points, order, start, near_c[q], x, y, z, k, best_d, best_i, n_found)
         r = 1
+        scale = abs(lo[0]) + abs(lo[1]) + abs(lo[2]) + abs(x) + abs(y) + abs(z) + g * cell   # the borders' size
         while True:
             # Distance from the query to the outside of the cells visited so far (inf: all of them).
             gap = np.inf
@@ -173,7 +174,7 @@ def _query(points: np.ndarray, order: np.ndarray, start: np.ndarray, lo: np.ndar
                 if c[a] + r < g - 1:
                     gap = min(gap, lo[a] + (c[a] + r + 1) * cell - queries[i, a])
             if gap != np.inf:                               # a point binned across a rounding
-                gap = _shrunk(gap, abs(lo[0]) + abs(lo[1]) + abs(lo[2]) + abs(x) + abs(y) + abs(z) + g * cell)
+                gap = _shrunk(gap, scale)
             if gap == np.inf or (n_found == k and best_d[k - 1] < gap * gap):
                 break
             r += 1

@@ -181,7 +181,7 @@ def _edges_by_weight(keys: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarr
 def radix_order(keys: np.ndarray) -> np.ndarray:
     """``np.argsort(keys, kind="stable")`` of uint64 keys (:func:`sorted_payloads` carrying each
     key's index)."""
-    return sorted_payloads(keys, np.arange(len(keys)).astype(np.uint64)).astype(np.int64)
+    return sorted_payloads(keys, np.arange(len(keys)).view(np.uint64)).view(np.int64)
 
 
 DIGIT_BITS = 8
@@ -207,7 +207,7 @@ def sorted_payloads(keys: np.ndarray, payloads: np.ndarray) -> np.ndarray:
             hist[p, (k >> (p * DIGIT_BITS)) & mask] += 1
     src_k, src_p = keys, payloads                # read in place by the first pass that moves anything
     dst_k, dst_p = np.empty_like(keys), np.empty_like(payloads)
-    spare_k = np.empty(0, keys.dtype)
+    first = True
     offset = np.empty(buckets, np.int64)
     for p in range(passes):
         total = 0
@@ -225,9 +225,9 @@ def sorted_payloads(keys: np.ndarray, payloads: np.ndarray) -> np.ndarray:
             dst_k[offset[d]] = k
             dst_p[offset[d]] = src_p[j]
             offset[d] += 1
-        if len(spare_k) == 0 and n:              # after the first pass: two buffers of each, in turn
-            spare_k = np.empty_like(keys)
-            src_k, src_p, dst_k, dst_p = dst_k, dst_p, spare_k, payloads
+        if first:                                # then two buffers of each, in turn: keys are not written
+            first = False
+            src_k, src_p, dst_k, dst_p = dst_k, dst_p, np.empty_like(keys), payloads
         else:
             src_k, src_p, dst_k, dst_p = dst_k, dst_p, src_k, src_p
     return src_p
