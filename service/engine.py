@@ -22,6 +22,7 @@ from model.octree.batch import merge_octrees, split_octree
 from model.octree.fuse import keep_scan
 from model.octree.geometry import to_y_up, up_rotations
 from model.octree.pointcloud import MIN_SCAN_POINTS, estimate_normals
+from model.octree.scan import ScanLayout, lay_out_scan
 from model.octree.symmetry import Mirror, find_mirror, symmetrize
 from model.surface import SURFACES, surface_mesh
 
@@ -198,9 +199,10 @@ class Engine:
         o = served.bundle.octree
 
         def prepare(job: ScanJob) -> tuple[Octree, tuple[Octree, Mirror | None, int]]:
-            with job.timer("decode_input"):
+            layout = _Layout(job.up, o.depth, o.adaptive, job.symmetry)
+            with job.timer("decode_input"):       # the layout is found beside the normals' orientation
                 loaded = shape_input(job.data, job.filename, o.depth, self.settings.max_points,
-                                     self.settings.max_npz_bytes)
+                                     self.settings.max_npz_bytes, beside=layout)
             strays = loaded.cloud.strays
             if len(loaded.cloud) < MIN_SCAN_POINTS:
                 dropped = f" once {strays} far from the rest are dropped" if strays else ""
@@ -210,9 +212,10 @@ class Engine:
             with job.timer("octree_build"):       # the scan's frame, as the model was trained
                 cloud = _upright(loaded.cloud, job.up)      # as the network was trained
                 if job.symmetry:
-                    cloud, mirror = symmetrize(cloud)
+                    cloud, mirror = symmetrize(cloud, mirror=layout.found.mirror)
                 scan = scan_octree(cloud, o.depth, adaptive=o.adaptive, full_depth=o.full_depth,
-                                   adaptive_depth=o.adaptive_depth, **({"threshold": o.threshold} if o.threshold else {}))
+                                   adaptive_depth=o.adaptive_depth, placement=layout.found.placement,
+                                   **({"threshold": o.threshold} if o.threshold else {}))
             return scan, (scan, mirror, strays)
 
         def encode(trees):
@@ -317,7 +320,26 @@ def _mesh(octree, options: MeshOptions, timer: StageTimer, rotation: np.ndarray 
 
 def _upright(cloud: PointCloud, up: str, model_up: str = "y") -> PointCloud:
     """An upload whose up axis is ``up`` turned to the model's up axis (itself when they agree)."""
-    return cloud if up == model_up else cloud.rotated(to_y_up(model_up).T @ to_y_up(up))
+    return cloud if up == model_up else cloud.rotated(_up_turn(up, model_up))
+
+
+def _up_turn(up: str, model_up: str = "y") -> np.ndarray:
+    """The rotation from the up axis ``up`` to the model's ``model_up``."""
+    return to_y_up(model_up).T @ to_y_up(up)
+
+
+class _Layout:
+    """A scan's layout (:func:`lay_out_scan`: its mirror plane, and its points placed in the scan
+    frame) from its points turned upright as :func:`_upright` turns them: the work given to the
+    scan's reading to run beside its normals' orientation; ``found`` holds it once the scan is read."""
+
+    def __init__(self, up: str, depth: int, adaptive: bool, symmetry: bool) -> None:
+        self.up, self.depth, self.adaptive, self.symmetry = up, depth, adaptive, symmetry
+        self.found: ScanLayout | None = None
+
+    def __call__(self, points: np.ndarray) -> None:
+        upright = points if self.up == "y" else points @ _up_turn(self.up).T
+        self.found = lay_out_scan(upright, self.depth, adaptive=self.adaptive, symmetry=self.symmetry)
 
 
 def _share(jobs: list, stage: str, seconds: float) -> None:

@@ -20,6 +20,7 @@ from model.image.frame import Framed, ImageSpec, frame_object, region_of
 from model.image.mask import MaskSpec, NoObjectError
 from model.octree import OctreeInputError
 from model.octree.inputs import HEADER_BYTES, LoadedInput, load_input, ply_vertex_count
+from model.octree.pointcloud import Beside
 
 from .errors import ServiceError
 
@@ -93,10 +94,11 @@ def _check_size(data: bytes, fmt: str, max_points: int, max_npz_bytes: int) -> N
 
 
 def shape_input(data: bytes, filename: str | None, depth: int, max_points: int, max_npz_bytes: int,
-                field: str = "points") -> LoadedInput:
+                field: str = "points", beside: Beside | None = None) -> LoadedInput:
     """Oriented points of an uploaded point cloud (field ``points``) or mesh or point cloud (field
     ``shape``), normals estimated when absent, or a 4xx: 415 for a kind of file the endpoint does
-    not take, 413 over a limit, 400 for a taken kind that is malformed or unusable."""
+    not take, 413 over a limit, 400 for a taken kind that is malformed or unusable.  ``beside``:
+    work on the checked points, run beside their normals' orientation (:data:`Beside`)."""
     if not data:
         raise ServiceError("empty_input", f"the '{field}' field is empty", "upload the file's bytes")
     kind = identify(data, filename)
@@ -109,7 +111,7 @@ def shape_input(data: bytes, filename: str | None, depth: int, max_points: int, 
         path = Path(tmp) / f"upload.{fmt}"
         path.write_bytes(data)
         try:
-            loaded = load_input(str(path), depth)
+            loaded = load_input(str(path), depth, beside=beside)
         except OctreeInputError as exc:
             message = str(exc).replace(str(path), f"the {fmt.upper()} upload").replace(tmp, "the upload folder")
             raise ServiceError("invalid_points", message, f"{takes[5:]}, with real coordinates") from None

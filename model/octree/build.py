@@ -19,6 +19,7 @@ from .knn import nearest_distances
 from .neighbors import build_neighbors
 from .octree import EMPTY, LEAF, PLANE_SCALE, SPLIT, Normalization, Octree, OctreeLevel
 from .orient import radix_order
+from .parallel import WORKERS
 from .patch_error import PatchErrorSettings, patch_errors
 from .planes import fit_planes
 from .pointcloud import PointCloud, normalization_of, validate
@@ -47,7 +48,8 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
                  full_depth: int = 2, adaptive_depth: int = 4,
                  neighbors: bool = True, measure_leaves: bool = False,
                  sample_spacing: float | None = None, normalization: Normalization | None = None,
-                 probe_search: bool = True, timings: dict | None = None) -> Octree:
+                 probe_search: bool = True, timings: dict | None = None,
+                 placement: Placement | None = None) -> Octree:
     """Build the octree of one oriented point cloud.
 
     ``threshold`` is delta hat in finest voxels (paper: sqrt(3)/2).  ``adaptive=False`` gives
@@ -58,28 +60,28 @@ def build_octree(cloud: PointCloud | tuple[np.ndarray, np.ndarray | None], depth
     bounding box, :func:`normalization_of`); points outside that cube are dropped.
     ``probe_search=False`` answers every patch->surface probe with a k-d tree instead of the
     search on each patch's plane (the reference: the same octree, slower).
-    ``timings`` receives seconds per build stage.
+    ``timings`` receives seconds per build stage.  ``placement``: the points already placed in the
+    cube with these settings (:func:`place_points`: e.g. beside the normals' estimation).
     """
     timer = StageTimes(timings)
     _check_settings(depth, full_depth, adaptive_depth, threshold)
     if not isinstance(cloud, PointCloud):
         cloud = validate(*cloud)
-    norm = normalization_of(cloud.points) if normalization is None else normalization
-    cube, normals = norm.to_cube(cloud.points), cloud.normals
-    if normalization is not None:
-        cube, normals = _inside(cube, normals)
+    measured = adaptive or measure_leaves
+    if placement is None:
+        placement = place_points(cloud.points, depth, normalization, measured, sample_spacing, timer)
+    else:
+        placement.check(cloud.points, depth, normalization, measured, sample_spacing)
+    norm, pts, key = placement.normalization, placement.pts, placement.key
     h_fine = 1.0 / (1 << depth)
 
     with timer("keys+sort"):
-        pts, nrm, key = _sorted_points(cube, normals, depth)
+        nrm = placement.normals_in_order(cloud.normals)
     with timer("moments"):
         moments = _aggregate(pts, nrm, key, depth)
     settings = None
-    if adaptive or measure_leaves:
-        with timer("spacing"):
-            spacing = (sample_spacing / norm.scale if sample_spacing is not None
-                       else _estimate_spacing(pts.T))
-        settings = PatchErrorSettings(threshold=threshold * h_fine, gap=spacing, probe_spacing=h_fine)
+    if measured:
+        settings = PatchErrorSettings(threshold=threshold * h_fine, gap=placement.spacing, probe_spacing=h_fine)
     rule = _SplitRule(depth, full_depth, adaptive_depth, adaptive, measure_leaves, probe_search, settings)
 
     levels: list[OctreeLevel] = []
@@ -177,40 +179,86 @@ def _level(lv: int, node_key: np.ndarray, node_ne: np.ndarray, parent: np.ndarra
     return level, split_idx
 
 
-def _inside(cube: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The points (cube coordinates) and normals inside the unit cube (at least 3, or OctreeInputError)."""
-    keep = ((cube >= 0) & (cube < 1)).all(1)
-    if keep.sum() < 3:
-        raise OctreeInputError(f"only {int(keep.sum())} of {len(cube)} points lie inside the given frame")
-    return (cube, normals) if keep.all() else (cube[keep], normals[keep])
+@dataclass(frozen=True)
+class Placement:
+    """A cloud's points placed in an octree's cube, the first step of :func:`build_octree`, which
+    needs the points only (so it can run before their normals are known): the cube's frame, the
+    points it keeps (``inside``, of the cloud's ``count``; None: all), their stable order by
+    finest key (``order``, into the kept points), their cube coordinates as rows (3, M) and keys in
+    that order, and the sampling spacing in cube units (None: not asked for)."""
+
+    depth: int
+    normalization: Normalization
+    framed: bool                 # the frame was given (not the points' own bounding box)
+    count: int
+    inside: np.ndarray | None
+    order: np.ndarray
+    pts: np.ndarray
+    key: np.ndarray
+    spacing: float | None
+    sample_spacing: float | None
+
+    def normals_in_order(self, normals: np.ndarray) -> np.ndarray:
+        """The cloud's normals (count, 3) as rows (3, M) in the points' order."""
+        nrm = np.ascontiguousarray(normals, dtype=np.float64)
+        return _rows_in_order(nrm if self.inside is None else nrm[self.inside], self.order)
+
+    def check(self, points: np.ndarray, depth: int, normalization: Normalization | None, spacing: bool,
+              sample_spacing: float | None) -> None:
+        """Raise ValueError unless this placement is what :func:`place_points` gives with these
+        arguments (the points compared by their count; the frame by value)."""
+        frame = self.normalization
+        same = (len(points) == self.count and depth == self.depth and (normalization is not None) == self.framed
+                and sample_spacing == self.sample_spacing and (self.spacing is not None or not spacing)
+                and (normalization is None or (np.array_equal(normalization.center, frame.center)
+                                               and normalization.scale == frame.scale)))
+        if not same:
+            raise ValueError("the placement was made for other points, depth, frame or spacing")
 
 
-def _sorted_points(cube: np.ndarray, normals: np.ndarray, depth: int):
-    """Points and normals as rows (3, N), and finest keys, sorted by key."""
-    cube = np.ascontiguousarray(cube, dtype=np.float64)
-    key = morton.cell_keys(cube, 1 << depth)
-    # The order of points inside a voxel is part of the result: it sets the rounding of the sums
-    # and which points the spacing estimate's thinning keeps.  A stable sort keeps the input's
-    # order there on every machine (the default sort's tie order depends on the CPU's SIMD
-    # level: with and without AVX-512 it gave other planes, and other labels near the threshold).
-    order = radix_order(key)                  # np.argsort(key, kind="stable"), 3x faster
-    return _rows_in_order(cube, np.ascontiguousarray(normals, dtype=np.float64), key, order)
+def place_points(points: np.ndarray, depth: int, normalization: Normalization | None = None, spacing: bool = True,
+                 sample_spacing: float | None = None, timer: StageTimes | None = None) -> Placement:
+    """``points`` (N, 3) placed in the cube of an octree of ``depth`` (:class:`Placement`): in
+    ``normalization``'s frame, dropping the points outside it (at least 3 must stay, or
+    OctreeInputError), or in their bounding box's (:func:`normalization_of`); the spacing
+    ``sample_spacing`` (input units) or estimated (:func:`_estimate_spacing`) when ``spacing``."""
+    timer = timer or StageTimes(None)
+    norm = normalization_of(points) if normalization is None else normalization
+    cube = norm.to_cube(points)
+    inside = None
+    if normalization is not None:
+        keep = ((cube >= 0) & (cube < 1)).all(1)
+        if keep.sum() < 3:
+            raise OctreeInputError(f"only {int(keep.sum())} of {len(cube)} points lie inside the given frame")
+        if not keep.all():
+            cube, inside = cube[keep], keep
+    with timer("keys+sort"):
+        cube = np.ascontiguousarray(cube, dtype=np.float64)
+        key = morton.cell_keys(cube, 1 << depth)
+        # The order of points inside a voxel is part of the result: it sets the rounding of the sums
+        # and which points the spacing estimate's thinning keeps.  A stable sort keeps the input's
+        # order there on every machine (the default sort's tie order depends on the CPU's SIMD
+        # level: with and without AVX-512 it gave other planes, and other labels near the threshold).
+        order = radix_order(key)                  # np.argsort(key, kind="stable"), 3x faster
+        pts, key = _rows_in_order(cube, order), key[order]
+    found = None
+    if spacing:
+        with timer("spacing"):
+            found = sample_spacing / norm.scale if sample_spacing is not None else _estimate_spacing(pts.T)
+    return Placement(depth, norm, normalization is not None, len(points), inside, order, pts, key, found,
+                     sample_spacing)
 
 
 @compiled
-def _rows_in_order(cube: np.ndarray, normals: np.ndarray, key: np.ndarray, order: np.ndarray):
-    """``cube.T[:, order]``, ``normals.T[:, order]`` (rows (3, N)) and ``key[order]``, in one pass."""
+def _rows_in_order(rows: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """``rows.T[:, order]`` of an (N, 3) array: rows (3, N), in one pass."""
     n = len(order)
-    pts = np.empty((3, n))
-    nrm = np.empty((3, n))
-    keys = np.empty(n, np.uint64)
+    out = np.empty((3, n))
     for j in range(n):
         i = order[j]
         for a in range(3):
-            pts[a, j] = cube[i, a]
-            nrm[a, j] = normals[i, a]
-        keys[j] = key[i]
-    return pts, nrm, keys
+            out[a, j] = rows[i, a]
+    return out
 
 
 def _aggregate(pts: np.ndarray, nrm: np.ndarray, key: np.ndarray, depth: int) -> list[_Moments]:
@@ -271,7 +319,7 @@ def _estimate_spacing(pts: np.ndarray, thin_to: int = 25_000) -> float:
     sub = pts[rng.random(len(pts)) < f] if f < 1.0 else pts
     if len(sub) < 2:
         return 0.0
-    d = nearest_distances(sub, sub[:: max(1, len(sub) // 4000)], 2)   # a k-d tree's distances, faster
+    d = nearest_distances(sub, sub[:: max(1, len(sub) // 4000)], 2, WORKERS)   # a k-d tree's distances, faster
     d = d[:, 1][d[:, 1] > 0]
     return float(2.0 * d.mean() * np.sqrt(f)) if len(d) else 0.0
 

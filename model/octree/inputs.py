@@ -12,7 +12,7 @@ import trimesh
 from ..formats import MESH_FORMATS, POINT_FORMATS, identify, is_column_header, not_taken
 from .errors import OctreeInputError
 from .geometry import bounding_box
-from .pointcloud import CUBE_FILL, PointCloud, validate
+from .pointcloud import CUBE_FILL, Beside, PointCloud, validate
 
 MESH_EXTENSIONS = (".obj", ".off", ".stl", ".glb", ".gltf", ".ply")
 TEXT_POINT_EXTENSIONS = (".xyz", ".txt", ".pts", ".csv")
@@ -35,11 +35,14 @@ class LoadedInput:
     normals_estimated: bool
 
 
-def load_input(path: str, depth: int, n_points: int | None = None, seed: int = 0) -> LoadedInput:
+def load_input(path: str, depth: int, n_points: int | None = None, seed: int = 0,
+               beside: Beside | None = None) -> LoadedInput:
     """Oriented points of any mesh trimesh reads, or of a point cloud file.
 
     Meshes are sampled uniformly by area with face normals; ``n_points`` defaults to a spacing
     of 1/3 finest voxel at ``depth``.  Point clouds without normals get estimated normals.
+    ``beside``: work on the checked points, run beside their normals' orientation
+    (:data:`~model.octree.pointcloud.Beside`).
     """
     if not os.path.isfile(path):
         raise OctreeInputError(f"{path}: no such file")
@@ -58,20 +61,20 @@ def load_input(path: str, depth: int, n_points: int | None = None, seed: int = 0
         needed = f"a mesh ({MESH_FORMATS}) or a point cloud ({POINT_FORMATS}) is needed"
         raise OctreeInputError(f"{path}: {not_taken(kind, needed)}")
     if ext in TEXT_POINT_EXTENSIONS:
-        return _points(_read_text(path), path)
+        return _points(_read_text(path), path, beside)
     if ext == ".npy":
-        return _points(_read_npy(path), path)
+        return _points(_read_npy(path), path, beside)
     if ext == ".npz":
-        return _read_npz(path)
-    return _read_trimesh(path, depth, n_points, seed)
+        return _read_npz(path, beside)
+    return _read_trimesh(path, depth, n_points, seed, beside)
 
 
-def _points(arr: np.ndarray, path: str) -> LoadedInput:
+def _points(arr: np.ndarray, path: str, beside: Beside | None) -> LoadedInput:
     if arr.ndim != 2 or arr.shape[1] not in (3, 6):
         raise OctreeInputError(
             f"{path}: expected N rows of 3 (x y z) or 6 (x y z nx ny nz) numbers, got shape {arr.shape}")
     normals = arr[:, 3:6] if arr.shape[1] == 6 else None
-    return LoadedInput(validate(arr[:, :3], normals), "points", None, normals is None)
+    return LoadedInput(validate(arr[:, :3], normals, beside=beside), "points", None, normals is None)
 
 
 def _read_text(path: str) -> np.ndarray:
@@ -110,7 +113,7 @@ def _real(arr: np.ndarray, path: str, what: str) -> np.ndarray:
     return arr.astype(np.float64)
 
 
-def _read_npz(path: str) -> LoadedInput:
+def _read_npz(path: str, beside: Beside | None) -> LoadedInput:
     try:
         data = np.load(path, allow_pickle=False)
         names = list(data.keys())
@@ -122,11 +125,11 @@ def _read_npz(path: str) -> LoadedInput:
     nkey = next((k for k in ("normals", "normal", "nrm") if k in names), None)
     pts = _member(data, pkey, path)
     if nkey is None:
-        return _points(pts, path)
+        return _points(pts, path, beside)
     nrm = _member(data, nkey, path)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise OctreeInputError(f"{path}: '{pkey}' must be (N, 3), got {pts.shape}")
-    return LoadedInput(validate(pts, nrm), "points", None, False)
+    return LoadedInput(validate(pts, nrm, beside=beside), "points", None, False)
 
 
 def _member(archive, name: str, path: str) -> np.ndarray:
@@ -139,7 +142,7 @@ def _member(archive, name: str, path: str) -> np.ndarray:
     return _real(arr, path, f"'{name}'")
 
 
-def _read_trimesh(path: str, depth: int, n_points: int | None, seed: int) -> LoadedInput:
+def _read_trimesh(path: str, depth: int, n_points: int | None, seed: int, beside: Beside | None) -> LoadedInput:
 
     try:
         obj = trimesh.load(path, process=False)
@@ -162,10 +165,10 @@ def _read_trimesh(path: str, depth: int, n_points: int | None, seed: int) -> Loa
                                f"{len(obj.vertices):,}; the file is truncated or corrupt")
     _check_text_counts(path, head)
     if isinstance(obj, trimesh.PointCloud) or (isinstance(obj, trimesh.Trimesh) and len(obj.faces) == 0):
-        return _ply_points(obj, path)
+        return _ply_points(obj, path, beside)
     if not isinstance(obj, trimesh.Trimesh):
         raise OctreeInputError(f"{path}: unsupported content ({type(obj).__name__})")
-    return _sample_mesh(obj, path, depth, n_points, seed)
+    return _sample_mesh(obj, path, depth, n_points, seed, beside)
 
 
 def _check_text_counts(path: str, head: bytes) -> None:
@@ -209,7 +212,7 @@ def ply_vertex_count(head: bytes) -> int | None:
     return int(m.group(1)) if m else None
 
 
-def _ply_points(obj, path: str) -> LoadedInput:
+def _ply_points(obj, path: str, beside: Beside | None) -> LoadedInput:
     pts = np.asarray(obj.vertices, dtype=np.float64)
     if len(pts) == 0:
         raise OctreeInputError(f"{path}: the file holds no points")
@@ -222,10 +225,10 @@ def _ply_points(obj, path: str) -> LoadedInput:
             normals = np.stack([np.asarray(raw[k], dtype=np.float64).ravel() for k in ("nx", "ny", "nz")], axis=1)
             if len(normals) != len(pts):
                 normals = None
-    return LoadedInput(validate(pts, normals), "points", None, normals is None)
+    return LoadedInput(validate(pts, normals, beside=beside), "points", None, normals is None)
 
 
-def _sample_mesh(mesh, path: str, depth: int, n_points: int | None, seed: int) -> LoadedInput:
+def _sample_mesh(mesh, path: str, depth: int, n_points: int | None, seed: int, beside: Beside | None) -> LoadedInput:
 
     v = np.asarray(mesh.vertices, dtype=np.float64)
     if not np.isfinite(v).all():
@@ -245,4 +248,5 @@ def _sample_mesh(mesh, path: str, depth: int, n_points: int | None, seed: int) -
     sub = trimesh.Trimesh(vertices=v, faces=np.asarray(mesh.faces)[faces], process=False)
     pts, fid = trimesh.sample.sample_surface(sub, n_points, seed=seed)
     normals = sub.face_normals[fid]
-    return LoadedInput(validate(pts, normals, drop_strays=False), "mesh", float(np.sqrt(total / n_points)), False)
+    return LoadedInput(validate(pts, normals, drop_strays=False, beside=beside), "mesh", float(np.sqrt(total / n_points)),
+                       False)

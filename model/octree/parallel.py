@@ -1,23 +1,27 @@
 """The compiled kernels' work shared between cores: they release the GIL, so threads run them in
 parallel.  One pool per process (a pool started per call costs about a millisecond), made
-afresh in a forked child, whose copy of the parent's pool has no threads behind it."""
+afresh in a forked child, whose copy of the parent's pool has no threads behind it; and a thread
+of its own for work run beside a serial step (:func:`beside`)."""
 
 from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import TypeVar
 
 import numpy as np
 
 WORKERS = max(1, min(os.cpu_count() or 1, 4))
 """Threads of the pool, and parts a large job is split into."""
 _pool: ThreadPoolExecutor | None = None
+_spare: ThreadPoolExecutor | None = None
+T = TypeVar("T")
 
 
 def _forget_pool() -> None:
-    global _pool
-    _pool = None
+    global _pool, _spare
+    _pool = _spare = None
 
 
 os.register_at_fork(after_in_child=_forget_pool)
@@ -45,3 +49,21 @@ def run_parts(work: Callable[[int, int], None], n: int, parts: int = WORKERS) ->
     futures = [_the_pool().submit(work, a, b) for a, b in zip(bounds[:-1], bounds[1:])]
     for f in futures:
         f.result()
+
+
+def beside(work: Callable[[], T]) -> Future[T]:
+    """``work()`` started on the spare core while the caller goes on with serial work, in a thread
+    of its own (so that ``work`` may share its own work through :func:`run_parts` without waiting
+    on the thread it runs in); run here, and done, on a one-core machine.  The caller waits on
+    the future (its error is raised there)."""
+    global _spare
+    if WORKERS < 2:
+        done: Future[T] = Future()
+        try:
+            done.set_result(work())
+        except Exception as exc:              # raised where the caller waits, as from a thread
+            done.set_exception(exc)
+        return done
+    if _spare is None:
+        _spare = ThreadPoolExecutor(max_workers=1, thread_name_prefix="octree-beside")
+    return _spare.submit(work)

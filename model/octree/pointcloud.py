@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -11,6 +12,7 @@ from .geometry import bounding_box
 from .knn import nearest
 from .octree import Normalization
 from .orient import covariances, edges_by_weight, neighbour_graph, propagate_signs, spanning_tree
+from .parallel import beside as on_spare_core
 from .planes import smallest_eigenvectors
 
 CUBE_FILL = 0.96
@@ -67,12 +69,21 @@ line (or a point): thinner than a finest voxel at any depth the build allows, an
 leaves of points on a line (6 significant digits put them ~1e-6 off it).  A plane is legitimate."""
 
 
-def validate(points: np.ndarray, normals: np.ndarray | None, drop_strays: bool = True) -> PointCloud:
+Beside = Callable[[np.ndarray], object]
+"""Work on a cloud's checked points (N, 3) (strays dropped) that does not need their normals,
+given to :func:`validate`: run once, on the spare core while the estimated normals are oriented
+(:func:`estimate_normals`; here where the normals are given), and done when the cloud is returned.
+Its result is its own to keep."""
+
+
+def validate(points: np.ndarray, normals: np.ndarray | None, drop_strays: bool = True,
+             beside: Beside | None = None) -> PointCloud:
     """Check shapes and values, normalise normals, drop the points far from the rest
     (:func:`stray_points`, counted in ``strays``; not with ``drop_strays=False``, for samples of a
     mesh, whose every point is its geometry); raise :class:`OctreeInputError` if unusable:
     NaN or infinite values, fewer than 3 points, or points that all lie on a line or at one spot
-    within rounding (decided on the singular values of the centred cloud, :data:`LINE_TOLERANCE`)."""
+    within rounding (decided on the singular values of the centred cloud, :data:`LINE_TOLERANCE`).
+    ``beside``: work on the checked points (:data:`Beside`)."""
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise OctreeInputError(f"points must be an (N, 3) array, got shape {pts.shape}")
@@ -102,7 +113,7 @@ def validate(points: np.ndarray, normals: np.ndarray | None, drop_strays: bool =
             f"all points lie on a line (their spread across it is {spread[1] / spread[0]:.1e} of their spread "
             "along it); a surface needs points spread in 2 dimensions")
     if nrm is None:
-        return PointCloud(pts, estimate_normals(pts), strays)
+        return PointCloud(pts, estimate_normals(pts, beside=beside), strays)
     if not np.isfinite(nrm).all():
         raise OctreeInputError("normals contain NaN or infinite values")
     length = np.sqrt(np.einsum("ij,ij->i", nrm, nrm))
@@ -111,6 +122,8 @@ def validate(points: np.ndarray, normals: np.ndarray | None, drop_strays: bool =
         raise OctreeInputError(
             f"{int(zero.sum())} normal(s) have zero length (first at row {int(np.flatnonzero(zero)[0])}); "
             "give unit normals or omit normals to have them estimated")
+    if beside is not None:
+        beside(pts)
     return PointCloud(pts, nrm / length[:, None], strays)
 
 
@@ -143,20 +156,33 @@ def scan_frame(points: np.ndarray, margin: float = SCAN_FRAME_MARGIN) -> Normali
     return Normalization(center=norm.center, scale=norm.scale * margin)
 
 
-def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
+def estimate_normals(points: np.ndarray, k: int = 16, beside: Beside | None = None) -> np.ndarray:
     """Unit normals from k-nearest-neighbour PCA, consistently oriented and pointing outward.
 
     Orientation follows Hoppe et al.: signs propagate along a minimum spanning tree of the kNN
     graph weighted by 1 - |n_i . n_j|; each connected part is then flipped so that most of its
     normals point away from its centroid.  The neighbours (:mod:`model.octree.knn`), the
     covariances, the tree and the walk along it are compiled (:mod:`model.octree.orient`).
+    The neighbours and covariances take both cores, the orientation one: ``beside(points)`` runs
+    on the other meanwhile (:data:`Beside`).
     """
     n = len(points)
     k = int(min(k, n))
     points = np.ascontiguousarray(points, dtype=np.float64)
     nn = nearest(points, k)
     cov = covariances(points, nn)
-    normals = smallest_eigenvectors(cov)[0]
+    side = None if beside is None else on_spare_core(lambda: beside(points))
+    try:
+        return _oriented(points, nn, smallest_eigenvectors(cov)[0])
+    finally:
+        if side is not None:
+            side.result()
+
+
+def _oriented(points: np.ndarray, nn: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """:func:`estimate_normals`' orientation of ``normals`` (n, 3), each the PCA normal of its
+    point's neighbours ``nn`` (n, k)."""
+    n, k = nn.shape
     if k < 2:
         return normals
     rows, cols, weights = neighbour_graph(nn, normals)

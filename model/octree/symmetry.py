@@ -197,16 +197,26 @@ def find_mirror(points: np.ndarray, axis: int = 0, tolerance: float = TOLERANCE,
     return Mirror(axis, offset, _support(sub, grid, axis, offset, tol), is_sheet(pts, tol))
 
 
+def mirror_points(points: np.ndarray, mirror: Mirror) -> np.ndarray:
+    """The points (N, 3) and their mirror images across ``mirror``'s plane (2N, 3), in that order."""
+    return np.concatenate([points, mirror.reflect(points)])
+
+
 def mirror_cloud(cloud: PointCloud, mirror: Mirror) -> PointCloud:
-    """The cloud and its mirror image across ``mirror``'s plane (2N points; normals reflected)."""
+    """The cloud and its mirror image across ``mirror``'s plane (2N points, :func:`mirror_points`;
+    normals reflected)."""
     normals = np.array(cloud.normals, dtype=np.float64, copy=True)
     normals[:, mirror.axis] *= -1
-    return PointCloud(np.concatenate([cloud.points, mirror.reflect(cloud.points)]),
-                      np.concatenate([cloud.normals, normals]))
+    return PointCloud(mirror_points(cloud.points, mirror), np.concatenate([cloud.normals, normals]))
 
 
-def symmetrize(cloud: PointCloud, min_support: float = MIN_SUPPORT, axis: int = 0) -> tuple[PointCloud, Mirror]:
+def symmetrize(cloud: PointCloud, min_support: float = MIN_SUPPORT, axis: int = 0,
+               mirror: Mirror | None = None) -> tuple[PointCloud, Mirror]:
     """``cloud`` with its mirror image added when the plane :func:`find_mirror` finds has at least
-    ``min_support``, else ``cloud`` itself; and that plane."""
-    mirror = find_mirror(cloud.points, axis=axis)
+    ``min_support``, else ``cloud`` itself; and that plane.  ``mirror``: the plane already found
+    (``find_mirror(cloud.points, axis=axis)``, e.g. beside the cloud's normals), else searched here."""
+    if mirror is None:
+        mirror = find_mirror(cloud.points, axis=axis)
+    elif mirror.axis != axis:
+        raise ValueError(f"the plane given is across axis {mirror.axis}, not {axis}")
     return (mirror_cloud(cloud, mirror) if mirror.supported(min_support) else cloud), mirror

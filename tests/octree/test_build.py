@@ -260,3 +260,40 @@ def test_bad_parameters_raise_the_same_error(kwargs):
     pts, nrm = sphere_points(1000)
     with pytest.raises(OctreeInputError):
         build_octree((pts, nrm), **kwargs)
+
+
+def assert_same_octree(a, b):
+    """The same nodes, labels, planes, errors, point counts and frame, bit for bit."""
+    assert a.nodes_per_depth() == b.nodes_per_depth()
+    for x, y in zip(a.levels, b.levels):
+        for field in ("key", "label", "child", "parent", "plane", "npoints"):
+            assert np.array_equal(getattr(x, field), getattr(y, field)), (x.depth, field)
+        assert np.array_equal(x.error, y.error, equal_nan=True), (x.depth, "error")
+    assert [(tuple(n.center), n.scale) for n in a.normalizations] == [(tuple(n.center), n.scale) for n in b.normalizations]
+
+
+def test_points_placed_apart_build_the_same_octree_and_a_placement_for_other_points_is_refused():
+    """:func:`place_points` is the build's first step done apart (before the normals are known):
+    with it the build gives the same octree, in the points' own frame, in a given frame and in one
+    that leaves points out; a placement made for another depth, frame, cloud or without the
+    spacing an adaptive build needs is refused."""
+    from model.octree import Normalization, validate
+    from model.octree.build import place_points
+
+    pts, nrm = mesh_points(trimesh.load(mesh_path(MESH_FILES[0]), force="mesh"), 20_000)
+    cloud = validate(pts, nrm)
+    own = Normalization(center=(pts.min(0) + pts.max(0)) / 2, scale=float(np.ptp(pts, 0).max() * 1.1))
+    cut = Normalization(center=own.center, scale=own.scale * 0.7)       # some points fall outside
+    for frame in (None, own, cut):
+        for adaptive in (True, False):
+            placed = place_points(cloud.points, 6, frame, spacing=adaptive)
+            assert (placed.inside is None) == (frame is not cut)
+            assert_same_octree(build_octree(cloud, 6, adaptive=adaptive, normalization=frame, placement=placed),
+                               build_octree(cloud, 6, adaptive=adaptive, normalization=frame))
+    placed = place_points(cloud.points, 6, own, spacing=False)
+    for kwargs in ({"depth": 5}, {"normalization": cut}, {"normalization": None}, {"adaptive": True}):
+        args = {"depth": 6, "normalization": own, "adaptive": False} | kwargs
+        with pytest.raises(ValueError, match="placement was made for other"):
+            build_octree(cloud, args.pop("depth"), placement=placed, **args)
+    with pytest.raises(ValueError, match="placement was made for other"):
+        build_octree(validate(pts[:-5], nrm[:-5]), 6, adaptive=False, normalization=own, placement=placed)

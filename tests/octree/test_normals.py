@@ -95,3 +95,23 @@ def test_the_radix_order_is_numpy_s_stable_argsort_of_keys(bits):
     keys[5::9] |= np.uint64(1) << np.uint64(63)
     assert np.array_equal(radix_order(keys), np.argsort(keys, kind="stable"))
     assert len(radix_order(keys[:0])) == 0
+
+
+def test_work_beside_the_orientation_sees_the_checked_points_once_and_changes_nothing():
+    """``beside`` runs once on the points the normals are estimated for (strays dropped), the
+    normals are the same bits as without it, and its error is raised; with normals given it runs
+    too."""
+    from model.octree.pointcloud import validate
+
+    pts = scan(generate("chair", 9002), resolution=128)[0][::2].astype(np.float64)
+    far = np.vstack([pts, pts.mean(0) + 1e3])                   # a stray: dropped before the work sees the points
+    seen = []
+    cloud = validate(far, None, beside=lambda p: seen.append(p.copy()))
+    assert len(seen) == 1 and np.array_equal(seen[0], pts) and cloud.strays == 1
+    assert np.array_equal(cloud.normals, validate(far, None).normals)
+    assert np.array_equal(estimate_normals(pts, beside=lambda p: None), estimate_normals(pts))
+    with pytest.raises(RuntimeError, match="beside failed"):
+        estimate_normals(pts, beside=lambda p: (_ for _ in ()).throw(RuntimeError("beside failed")))
+    seen.clear()
+    validate(pts, cloud.normals, beside=seen.append)
+    assert len(seen) == 1 and np.array_equal(seen[0], pts)

@@ -57,3 +57,29 @@ def test_a_forked_child_uses_a_pool_of_its_own():
         child.kill()
     assert child.exitcode == 0, "the forked child did not finish (a pool without threads)"
     assert queue.get(timeout=5) == 100
+
+
+def test_work_beside_returns_its_result_and_its_error_where_it_is_waited_on():
+    from model.octree.parallel import beside
+
+    assert beside(lambda: 6 * 7).result(timeout=30) == 42
+    failed = beside(lambda: int("not a number"))
+    with pytest.raises(ValueError, match="not a number"):
+        failed.result(timeout=30)
+
+
+def test_work_beside_may_share_itself_between_the_pool_s_threads():
+    """The work beside runs in a thread of its own: its run_parts does not wait on the thread it
+    runs in (with both pool threads busy with the caller's parts meanwhile, too)."""
+    from model.octree.parallel import beside
+
+    out = np.zeros(1000, int)
+
+    def work() -> int:
+        run_parts(lambda a, b: out.__setitem__(slice(a, b), 1), 1000, 2)
+        return int(out.sum())
+
+    side = beside(work)
+    seen = np.zeros(100, int)
+    run_parts(lambda a, b: (time.sleep(0.02), seen.__setitem__(slice(a, b), 1)), 100, 2)
+    assert side.result(timeout=30) == 1000 and seen.sum() == 100

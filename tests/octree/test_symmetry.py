@@ -204,3 +204,33 @@ def test_the_voxel_scores_are_the_numpy_formulation_s(chair):
     want = np.where(counted > 0, (hit & off_plane).sum(1) / np.maximum(counted, 1), 0.0)
     got = _coarse_supports(part, sample, 0, offsets, tol)
     assert np.array_equal(got, want) and want.max() > 0.5
+
+
+def test_a_scan_laid_out_before_its_normals_builds_the_same_octree(chair):
+    """The service finds a scan's mirror plane and places its points (mirrored when the plane is
+    supported) beside the normals' estimation (:func:`lay_out_scan`): the same plane and octree as
+    symmetrize then scan_octree, for a mirrored chair, an unmirrored L and with symmetry off; a
+    plane across another axis is refused."""
+    from model.octree.scan import lay_out_scan, scan_octree
+
+    from .test_build import assert_same_octree
+
+    body, arm = trimesh.creation.box([1.0, 0.5, 0.5]), trimesh.creation.box([0.3, 0.5, 1.2])
+    arm.apply_translation([0.35, 0.0, 0.85])
+    pts, _ = chair
+    scans = {"chair": pts[seen_part(pts, 0.45, 0.4)][::3],       # a band of one side missing: mirrored
+             "L": mesh_points(trimesh.util.concatenate([body, arm]), 8000)[0]}
+    for name, points in scans.items():
+        cloud = validate(points, None)
+        for symmetry in (True, False):
+            layout = lay_out_scan(cloud.points, 6, symmetry=symmetry)
+            if symmetry:
+                want, mirror = symmetrize(cloud)
+                got, found = symmetrize(cloud, mirror=layout.mirror)
+                assert found == mirror == layout.mirror and mirror.supported() == (name == "chair")
+            else:
+                want = got = cloud
+                assert layout.mirror is None
+            assert_same_octree(scan_octree(got, 6, placement=layout.placement), scan_octree(want, 6))
+    with pytest.raises(ValueError, match="across axis 0, not 1"):
+        symmetrize(cloud, axis=1, mirror=layout.mirror or find_mirror(cloud.points))
