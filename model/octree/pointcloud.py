@@ -9,6 +9,7 @@ import numpy as np
 
 from .errors import OctreeInputError
 from .geometry import bounding_box
+from .jit import compiled
 from .knn import nearest
 from .octree import Normalization
 from .orient import covariances, edges_by_weight, neighbour_graph, propagate_signs, spanning_tree
@@ -51,7 +52,7 @@ def stray_points(points: np.ndarray) -> np.ndarray:
     than :data:`STRAY_GAP` times the last, a gap that leaves at least ``1 - STRAY_SHARE`` of the
     points inside it.  Such points (a scanner's flying pixels, a reflection, a far wall) would
     otherwise set the cube the cloud is framed in and shrink the object in it to a speck."""
-    r = np.linalg.norm(points - np.median(points, axis=0), axis=1)
+    r = distances_from(np.ascontiguousarray(points, dtype=np.float64), np.median(points, axis=0))
     first = max(int(np.ceil((1 - STRAY_SHARE) * len(r))) - 1, 0)
     far = np.argpartition(r, first)[first:]               # only the farthest tenth is sorted
     far = far[np.argsort(r[far], kind="stable")]
@@ -61,6 +62,20 @@ def stray_points(points: np.ndarray) -> np.ndarray:
     if len(gaps):
         stray[far[gaps[0] + 1:]] = True
     return stray
+
+
+@compiled
+def distances_from(points: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """Each of ``points``' (N, 3) distance from ``centre`` (3,), in one pass: the square root of
+    the coordinate differences' squares summed left to right, ``sqrt((dx dx + dy dy) + dz dz)``,
+    which is what ``np.linalg.norm(points - centre, axis=1)`` computes."""
+    out = np.empty(len(points))
+    for i in range(len(points)):
+        dx = points[i, 0] - centre[0]
+        dy = points[i, 1] - centre[1]
+        dz = points[i, 2] - centre[2]
+        out[i] = np.sqrt((dx * dx + dy * dy) + dz * dz)
+    return out
 
 
 LINE_TOLERANCE = 1e-4

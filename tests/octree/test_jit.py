@@ -55,7 +55,7 @@ KERNELS = """
 import numba, numpy as np, warnings
 warnings.simplefilter("ignore")
 from model.octree import build, build_octree, fuse, geometry, keys, knn, orient, patch_error, patches, planes, probe_search
-from model.octree import segments, symmetry
+from model.octree import pointcloud, segments, symmetry
 from model.octree.pointcloud import estimate_normals
 from model.octree.symmetry import find_mirror
 from model.surface import clusters, watertight_mesh
@@ -80,7 +80,7 @@ def contracted(a, b, c):      # the detector's own check: asked to, the compiler
 x = np.ones(8)
 contracted(x, x, x)
 kernels = [f for m in (knn, probe_search, orient, geometry, clusters, fuse, mask, build, patch_error, segments, patches,
-                        planes, symmetry, keys, frame) for f in vars(m).values()
+                        planes, symmetry, keys, frame, pointcloud) for f in vars(m).values()
            if hasattr(f, "inspect_asm")]
 for f in kernels + [contracted]:
     for sig in f.signatures:
@@ -105,7 +105,7 @@ def test_no_kernel_fuses_a_multiply_and_an_add(tmp_path):
     assert {"_query", "_within", "_grid_probes", "_edge_probes", "covariance_rows", "_cube_polygons",
             "_nearest_on_fans", "_walk", "_blend", "_eigen_vectors", "_plane_normals", "_polygon_distance",
             "_place_planes", "_point_distances", "_segment_sums", "_write_patches", "radix_order",
-            "sorted_payloads", "spanning_tree", "cell_keys", "_differing_bounds"} <= set(listings)
+            "sorted_payloads", "spanning_tree", "cell_keys", "_differing_bounds", "distances_from"} <= set(listings)
     fused = {name: [op for op in FUSED if op in asm] for name, asm in listings.items()}
     assert not any(ops for name, ops in fused.items() if name != "contracted"), fused
     cpu = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""

@@ -115,3 +115,18 @@ def test_work_beside_the_orientation_sees_the_checked_points_once_and_changes_no
     seen.clear()
     validate(pts, cloud.normals, beside=seen.append)
     assert len(seen) == 1 and np.array_equal(seen[0], pts)
+
+
+def test_the_distances_from_a_centre_are_numpy_s_norm_bit_for_bit():
+    """:func:`distances_from` (the stray test's radii) sums the squares left to right (the order of
+    ``np.linalg.norm(points - centre, axis=1)``, whose reduction NumPy may vectorise differently
+    on another CPU, so it is not the reference here): the same bits on clouds of every scale."""
+    from model.octree.pointcloud import distances_from
+
+    rng = np.random.default_rng(3)
+    for scale in (1e-9, 1.0, 3e7):
+        pts = rng.normal(size=(50_000, 3)) * rng.random((50_000, 1)) * scale + rng.normal(size=3) * scale
+        centre = np.median(pts, axis=0)
+        d = pts - centre
+        want = np.sqrt((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2])
+        assert np.array_equal(distances_from(pts, centre), want)
