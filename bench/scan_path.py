@@ -9,9 +9,10 @@ estimated), of which the k nearest neighbours alone; the symmetry search; the sc
 (adaptive, neighbour tables); encoder; decoder (with the bundle's keep_scan bias); keep_scan; the
 patch mesh.  Then the same two first steps as the service runs them: the scan's layout (its
 mirror plane and its points placed in the scan frame, :func:`lay_out_scan`) found on the second
-core while the normals are oriented on the first, and the octree built from that layout.  References timed alongside, run by run: the
-neighbours from SciPy's cKDTree (what the grid search returns, bit for bit), and the octree with
-every probe asked of a k-d tree (``probe_search=False``: the same octree).  Prints the median and the
+core while the normals are oriented on the first, and the octree built from that layout.
+References timed alongside, run by run: the neighbours from SciPy's cKDTree (what the grid
+search returns, bit for bit), and the octree with every probe asked of a k-d tree
+(``probe_search=False``: the same octree).  Prints the median and the
 worst of ``--repeats`` runs after one warm-up, and the octree target of the request-speed issue
 (the build at depth 7 on a 20,000-point scan <= 20 ms).
 """
