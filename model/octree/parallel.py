@@ -53,9 +53,11 @@ def run_parts(work: Callable[[int, int], None], n: int, parts: int = WORKERS) ->
 
 def beside(work: Callable[[], T]) -> Future[T]:
     """``work()`` started on the spare core while the caller goes on with serial work, in a thread
-    of its own (so that ``work`` may share its own work through :func:`run_parts` without waiting
-    on the thread it runs in); run here, and done, on a one-core machine.  The caller waits on
-    the future (its error is raised there)."""
+    of a pool of its own (so that ``work`` may share its own work through :func:`run_parts`
+    without waiting on the thread it runs in; :data:`WORKERS` threads, so that callers in several
+    threads do not queue behind one another); run here, and done, on a one-core machine.  The
+    caller waits on the future (its error is raised there); ``work`` must not itself wait on work
+    beside."""
     global _spare
     if WORKERS < 2:
         done: Future[T] = Future()
@@ -65,5 +67,5 @@ def beside(work: Callable[[], T]) -> Future[T]:
             done.set_exception(exc)
         return done
     if _spare is None:
-        _spare = ThreadPoolExecutor(max_workers=1, thread_name_prefix="octree-beside")
+        _spare = ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="octree-beside")
     return _spare.submit(work)

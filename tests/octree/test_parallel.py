@@ -83,3 +83,16 @@ def test_work_beside_may_share_itself_between_the_pool_s_threads():
     seen = np.zeros(100, int)
     run_parts(lambda a, b: (time.sleep(0.02), seen.__setitem__(slice(a, b), 1)), 100, 2)
     assert side.result(timeout=30) == 1000 and seen.sum() == 100
+
+
+def test_work_beside_of_two_callers_runs_at_once():
+    """Two threads' work beside does not queue behind one another: each waits for the other."""
+    import threading
+
+    from model.octree.parallel import WORKERS, beside
+
+    if WORKERS < 2:
+        pytest.skip("one core: work beside runs where it is asked")
+    both = threading.Barrier(2, timeout=10)
+    first, second = beside(both.wait), beside(both.wait)
+    assert {first.result(timeout=30), second.result(timeout=30)} == {0, 1}
