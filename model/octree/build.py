@@ -179,18 +179,25 @@ def _level(lv: int, node_key: np.ndarray, node_ne: np.ndarray, parent: np.ndarra
     return level, split_idx
 
 
-@dataclass(frozen=True)
+PLACEMENT_PROBES = 1024
+"""About this many of a cloud's points are kept with its :class:`Placement` to tell it from
+another cloud's (:meth:`Placement.check`)."""
+
+
+@dataclass(frozen=True, eq=False)
 class Placement:
     """A cloud's points placed in an octree's cube, the first step of :func:`build_octree`, which
     needs the points only (so it can run before their normals are known): the cube's frame, the
     points it keeps (``inside``, of the cloud's ``count``; None: all), their stable order by
     finest key (``order``, into the kept points), their cube coordinates as rows (3, M) and keys in
-    that order, and the sampling spacing in cube units (None: not asked for)."""
+    that order, and the sampling spacing in cube units (None: not asked for).  ``probes``: every
+    :func:`probe_step`-th of the cloud's points, as given."""
 
     depth: int
     normalization: Normalization
     framed: bool                 # the frame was given (not the points' own bounding box)
     count: int
+    probes: np.ndarray
     inside: np.ndarray | None
     order: np.ndarray
     pts: np.ndarray
@@ -206,14 +213,22 @@ class Placement:
     def check(self, points: np.ndarray, depth: int, normalization: Normalization | None, spacing: bool,
               sample_spacing: float | None) -> None:
         """Raise ValueError unless this placement is what :func:`place_points` gives with these
-        arguments (the points compared by their count; the frame by value)."""
+        arguments: the points compared by their count and by :data:`PLACEMENT_PROBES` of them
+        spread over the cloud (a cloud reordered, moved or turned is told apart; two clouds equal
+        at every probe are not), the frame by value."""
         frame = self.normalization
         same = (len(points) == self.count and depth == self.depth and (normalization is not None) == self.framed
                 and sample_spacing == self.sample_spacing and (self.spacing is not None or not spacing)
+                and np.array_equal(np.asarray(points)[::probe_step(self.count)], self.probes)
                 and (normalization is None or (np.array_equal(normalization.center, frame.center)
                                                and normalization.scale == frame.scale)))
         if not same:
             raise ValueError("the placement was made for other points, depth, frame or spacing")
+
+
+def probe_step(count: int) -> int:
+    """The stride of the points a :class:`Placement` keeps to check a cloud by."""
+    return max(1, count // PLACEMENT_PROBES)
 
 
 def place_points(points: np.ndarray, depth: int, normalization: Normalization | None = None, spacing: bool = True,
@@ -245,7 +260,8 @@ def place_points(points: np.ndarray, depth: int, normalization: Normalization | 
     if spacing:
         with timer("spacing"):
             found = sample_spacing / norm.scale if sample_spacing is not None else _estimate_spacing(pts.T)
-    return Placement(depth, norm, normalization is not None, len(points), inside, order, pts, key, found,
+    probes = np.array(np.asarray(points)[::probe_step(len(points))], dtype=np.float64)
+    return Placement(depth, norm, normalization is not None, len(points), probes, inside, order, pts, key, found,
                      sample_spacing)
 
 

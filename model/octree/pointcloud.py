@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import wait
 from dataclasses import dataclass
 
 import numpy as np
@@ -188,10 +189,14 @@ def estimate_normals(points: np.ndarray, k: int = 16, beside: Beside | None = No
     cov = covariances(points, nn)
     side = None if beside is None else on_spare_core(lambda: beside(points))
     try:
-        return _oriented(points, nn, smallest_eigenvectors(cov)[0])
-    finally:
-        if side is not None:
-            side.result()
+        normals = _oriented(points, nn, smallest_eigenvectors(cov)[0])
+    except BaseException:
+        if side is not None:                  # the work beside is finished, its own error not raised:
+            wait([side])                      # the orientation's is the one to see
+        raise
+    if side is not None:
+        side.result()
+    return normals
 
 
 def _oriented(points: np.ndarray, nn: np.ndarray, normals: np.ndarray) -> np.ndarray:

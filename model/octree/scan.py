@@ -27,7 +27,7 @@ def scan_octree(cloud: PointCloud, depth: int, *, adaptive: bool = True, full_de
                         placement=placement)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ScanLayout:
     """What a scan's octree needs of its points alone, so that it can be found before their normals
     (beside their estimation): the mirror plane (None: not searched) and the points placed in the

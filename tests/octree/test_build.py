@@ -290,10 +290,19 @@ def test_points_placed_apart_build_the_same_octree_and_a_placement_for_other_poi
             assert (placed.inside is None) == (frame is not cut)
             assert_same_octree(build_octree(cloud, 6, adaptive=adaptive, normalization=frame, placement=placed),
                                build_octree(cloud, 6, adaptive=adaptive, normalization=frame))
+    placed = place_points(cloud.points, 6, own, spacing=True, sample_spacing=0.004)      # every leaf measured
+    assert_same_octree(build_octree(cloud, 6, adaptive=False, measure_leaves=True, sample_spacing=0.004,
+                                    normalization=own, placement=placed),
+                       build_octree(cloud, 6, adaptive=False, measure_leaves=True, sample_spacing=0.004,
+                                    normalization=own))
     placed = place_points(cloud.points, 6, own, spacing=False)
-    for kwargs in ({"depth": 5}, {"normalization": cut}, {"normalization": None}, {"adaptive": True}):
+    for kwargs in ({"depth": 5}, {"normalization": cut}, {"normalization": None}, {"adaptive": True},
+                   {"sample_spacing": 0.004}):
         args = {"depth": 6, "normalization": own, "adaptive": False} | kwargs
         with pytest.raises(ValueError, match="placement was made for other"):
             build_octree(cloud, args.pop("depth"), placement=placed, **args)
-    with pytest.raises(ValueError, match="placement was made for other"):
-        build_octree(validate(pts[:-5], nrm[:-5]), 6, adaptive=False, normalization=own, placement=placed)
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    shuffled = np.random.default_rng(0).permutation(len(pts))
+    for other in (validate(pts[:-5], nrm[:-5]), validate(pts[shuffled], nrm[shuffled]), cloud.rotated(turn)):
+        with pytest.raises(ValueError, match="placement was made for other"):      # fewer, reordered, turned
+            build_octree(other, 6, adaptive=False, normalization=own, placement=placed)

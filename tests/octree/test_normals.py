@@ -130,3 +130,23 @@ def test_the_distances_from_a_centre_are_numpy_s_norm_bit_for_bit():
         d = pts - centre
         want = np.sqrt((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2])
         assert np.array_equal(distances_from(pts, centre), want)
+
+
+def test_an_error_of_the_orientation_is_the_one_raised_when_the_work_beside_fails_too(monkeypatch):
+    """The work beside is waited for, and its own error does not hide the orientation's."""
+    import model.octree.pointcloud as pointcloud
+
+    def broken(*args):
+        raise ArithmeticError("orientation failed")
+
+    done = []
+
+    def failing(points):
+        done.append(len(points))
+        raise RuntimeError("beside failed")
+
+    monkeypatch.setattr(pointcloud, "_oriented", broken)
+    pts = np.random.default_rng(0).random((500, 3))
+    with pytest.raises(ArithmeticError, match="orientation failed"):
+        pointcloud.estimate_normals(pts, beside=failing)
+    assert done == [500]

@@ -1,4 +1,4 @@
-"""The kernels' thread pool: parts done, errors raised, and a forked child that works."""
+"""The kernels' thread pools: parts done, work beside, errors raised, and a forked child that works."""
 
 from __future__ import annotations
 
@@ -34,19 +34,24 @@ def test_an_error_in_a_part_is_raised():
 
 
 def _child(queue) -> None:
+    from model.octree.parallel import beside
+
     out = np.zeros(100, int)
 
     def work(a: int, b: int) -> None:
         out[a:b] = 1
 
     run_parts(work, 100, 2)
-    queue.put(int(out.sum()))
+    queue.put(int(out.sum()) + beside(lambda: 7).result(timeout=20))
 
 
 def test_a_forked_child_uses_a_pool_of_its_own():
     """A data loader's worker forked after the parent used the pool: the parent's pool has no
     threads in the child, which would wait for ever on it."""
-    run_parts(lambda a, b: time.sleep(0.05), 10, 2)      # the parent's pool has both its threads,
+    from model.octree.parallel import beside
+
+    run_parts(lambda a, b: time.sleep(0.05), 10, 2)      # the parent's pools have their threads,
+    beside(lambda: time.sleep(0.05)).result()
     time.sleep(0.2)                                       # idle by now
     ctx = multiprocessing.get_context("fork")
     queue = ctx.Queue()
@@ -56,7 +61,7 @@ def test_a_forked_child_uses_a_pool_of_its_own():
     if child.exitcode is None:
         child.kill()
     assert child.exitcode == 0, "the forked child did not finish (a pool without threads)"
-    assert queue.get(timeout=5) == 100
+    assert queue.get(timeout=5) == 107
 
 
 def test_work_beside_returns_its_result_and_its_error_where_it_is_waited_on():
@@ -69,20 +74,25 @@ def test_work_beside_returns_its_result_and_its_error_where_it_is_waited_on():
 
 
 def test_work_beside_may_share_itself_between_the_pool_s_threads():
-    """The work beside runs in a thread of its own: its run_parts does not wait on the thread it
-    runs in (with both pool threads busy with the caller's parts meanwhile, too)."""
-    from model.octree.parallel import beside
+    """Work beside runs in a pool of its own: two callers' work, running at once, each sharing
+    itself through run_parts, finishes (were it run in the kernels' pool, both of its threads would
+    wait on parts that no thread is left to run)."""
+    import threading
 
-    out = np.zeros(1000, int)
+    from model.octree.parallel import WORKERS, beside
+
+    if WORKERS < 2:
+        pytest.skip("one core: work beside runs where it is asked")
+    both = threading.Barrier(2, timeout=10)
 
     def work() -> int:
-        run_parts(lambda a, b: out.__setitem__(slice(a, b), 1), 1000, 2)
+        both.wait()
+        out = np.zeros(100, int)
+        run_parts(lambda a, b: out.__setitem__(slice(a, b), 1), 100, 2)
         return int(out.sum())
 
-    side = beside(work)
-    seen = np.zeros(100, int)
-    run_parts(lambda a, b: (time.sleep(0.02), seen.__setitem__(slice(a, b), 1)), 100, 2)
-    assert side.result(timeout=30) == 1000 and seen.sum() == 100
+    first, second = beside(work), beside(work)
+    assert first.result(timeout=30) == second.result(timeout=30) == 100
 
 
 def test_work_beside_of_two_callers_runs_at_once():
