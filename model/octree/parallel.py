@@ -1,6 +1,6 @@
 """The compiled kernels' work shared between cores: they release the GIL, so threads run them in
 parallel.  One pool per process (a pool started per call costs about a millisecond), made
-afresh in a forked child, whose copy of the parent's pool has no threads behind it; and a thread
+afresh in a forked child, whose copy of the parent's pool has no threads behind it; and a pool
 of its own for work run beside a serial step (:func:`beside`)."""
 
 from __future__ import annotations
