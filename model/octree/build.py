@@ -232,11 +232,13 @@ def probe_step(count: int) -> int:
 
 
 def place_points(points: np.ndarray, depth: int, normalization: Normalization | None = None, spacing: bool = True,
-                 sample_spacing: float | None = None, timer: StageTimes | None = None) -> Placement:
+                 sample_spacing: float | None = None, timer: StageTimes | None = None,
+                 threads: int = WORKERS) -> Placement:
     """``points`` (N, 3) placed in the cube of an octree of ``depth`` (:class:`Placement`): in
     ``normalization``'s frame, dropping the points outside it (at least 3 must stay, or
     OctreeInputError), or in their bounding box's (:func:`normalization_of`); the spacing
-    ``sample_spacing`` (input units) or estimated (:func:`_estimate_spacing`) when ``spacing``."""
+    ``sample_spacing`` (input units) or estimated (:func:`_estimate_spacing`, its queries on
+    ``threads`` threads: 1 where the placement runs beside other work) when ``spacing``."""
     timer = timer or StageTimes(None)
     norm = normalization_of(points) if normalization is None else normalization
     cube = norm.to_cube(points)
@@ -259,7 +261,7 @@ def place_points(points: np.ndarray, depth: int, normalization: Normalization | 
     found = None
     if spacing:
         with timer("spacing"):
-            found = sample_spacing / norm.scale if sample_spacing is not None else _estimate_spacing(pts.T)
+            found = sample_spacing / norm.scale if sample_spacing is not None else _estimate_spacing(pts.T, threads)
     probes = np.array(np.asarray(points)[::probe_step(len(points))], dtype=np.float64)
     return Placement(depth, norm, normalization is not None, len(points), probes, inside, order, pts, key, found,
                      sample_spacing)
@@ -324,7 +326,7 @@ def _children(node_key, node_ne, split_idx, mom: _Moments, fine: _Moments):
     return child_key, child_ne
 
 
-def _estimate_spacing(pts: np.ndarray, thin_to: int = 25_000) -> float:
+def _estimate_spacing(pts: np.ndarray, threads: int = WORKERS, thin_to: int = 25_000) -> float:
     """Typical sample spacing 1/sqrt(density), from nearest neighbours in a random thinning.
 
     A random thinning to fraction f of any point set is close to Poisson, whose mean
@@ -335,7 +337,7 @@ def _estimate_spacing(pts: np.ndarray, thin_to: int = 25_000) -> float:
     sub = pts[rng.random(len(pts)) < f] if f < 1.0 else pts
     if len(sub) < 2:
         return 0.0
-    d = nearest_distances(sub, sub[:: max(1, len(sub) // 4000)], 2, WORKERS)   # a k-d tree's distances, faster
+    d = nearest_distances(sub, sub[:: max(1, len(sub) // 4000)], 2, threads)   # a k-d tree's distances, faster
     d = d[:, 1][d[:, 1] > 0]
     return float(2.0 * d.mean() * np.sqrt(f)) if len(d) else 0.0
 

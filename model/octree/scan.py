@@ -41,8 +41,9 @@ class ScanLayout:
 def lay_out_scan(points: np.ndarray, depth: int, *, adaptive: bool = True, symmetry: bool = True,
                  min_support: float = MIN_SUPPORT) -> ScanLayout:
     """The :class:`ScanLayout` of a scan's points (N, 3) (upright, as its octree will be built),
-    for an octree of ``depth`` (``adaptive``: with the sampling spacing its patch errors need)."""
+    for an octree of ``depth`` (``adaptive``: with the sampling spacing its patch errors need), on
+    one core (it runs beside the normals' orientation, which takes the other)."""
     mirror = find_mirror(points) if symmetry else None
     if mirror is not None and mirror.supported(min_support):
         points = mirror_points(points, mirror)
-    return ScanLayout(mirror, place_points(points, depth, scan_frame(points), adaptive))
+    return ScanLayout(mirror, place_points(points, depth, scan_frame(points), adaptive, threads=1))   # one core
