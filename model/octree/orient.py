@@ -160,8 +160,6 @@ def edges_by_weight(weights: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[
     keys through the radix passes (:func:`sorted_payloads`), so that the tree reads them in turn
     instead of looking each up through a permutation (a cache miss an edge on large clouds)."""
     a, b = np.ascontiguousarray(a, dtype=np.int64), np.ascontiguousarray(b, dtype=np.int64)
-    if len(a) and (min(a.min(), b.min()) < 0 or max(a.max(), b.max()) >= 1 << 32):
-        raise ValueError("edges_by_weight packs node numbers in 32 bits: they must lie in 0 .. 2^32 - 1")
     ends = _edges_by_weight(np.ascontiguousarray(weights, dtype=np.float64).view(np.uint64), a, b)
     ends = ends.view(np.uint32).reshape(-1, 2)             # each edge's two 32-bit halves, read in place
     return (ends[:, 1], ends[:, 0]) if sys.byteorder == "little" else (ends[:, 0], ends[:, 1])
@@ -170,9 +168,12 @@ def edges_by_weight(weights: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[
 @compiled
 def _edges_by_weight(keys: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """:func:`edges_by_weight` of the weights' bit patterns: each edge's ends packed in one 64-bit
-    payload (``a`` above ``b``), in the sorted order."""
+    payload (``a`` above ``b``), in the sorted order; ValueError for a node number outside 32 bits
+    (checked as the ends are packed)."""
     packed = np.empty(len(keys), np.uint64)
     for e in range(len(keys)):
+        if a[e] < 0 or b[e] < 0 or a[e] >= 1 << 32 or b[e] >= 1 << 32:
+            raise ValueError("edges_by_weight packs node numbers in 32 bits: they must lie in 0 .. 2^32 - 1")
         packed[e] = (np.uint64(a[e]) << np.uint64(32)) | np.uint64(b[e])
     return sorted_payloads(keys, packed)
 
