@@ -15,7 +15,7 @@ from PIL import Image
 from export.bundle import Bundle, BundleError, Task, load_bundle
 from export.runtime import Runtime
 from model.decode import DECODED_NORMALIZATION
-from model.image.frame import Framed, frame_object, upload_mask
+from model.image.frame import Framed, compile_framing, frame_object, upload_mask
 from model.image.mask import MaskSpec, NoObjectError, object_mask
 from model.octree import Octree, PointCloud, build_octree, scan_octree
 from model.octree.batch import merge_octrees, split_octree
@@ -100,11 +100,12 @@ class Engine:
                 size = b.image_spec().size
                 latent = rt.encode_image(np.zeros((1, 3, size, size), np.float32))
                 frame_object(np.full((48, 64, 4), 255, np.uint8), b.image_spec(), remove_background="false")
-                if rt.has_foreground:                      # its network and the guided filter's kernel
+                if rt.has_foreground:                      # its network, and the framing's kernels
                     try:
-                        object_mask(np.zeros((240, 320, 3), np.uint8), rt.segment, b.mask_spec())
+                        object_mask(np.zeros((240, 320, 4), np.uint8), rt.segment, b.mask_spec())
                     except NoObjectError:
                         pass
+                    compile_framing(b.image_spec(), b.mask_spec())
             elif b.task in (Task.COMPLETION, Task.AUTOENCODER, Task.CLASSIFY):
                 scan = build_octree(_sphere(), b.octree.depth, adaptive=b.octree.adaptive)
                 latent, guide = rt.encode_scan(scan)

@@ -11,12 +11,16 @@ from scipy import ndimage
 from model.image.decode import ImageError
 from model.image.frame import MIN_OBJECT_SIDE, ImageSpec, frame_object
 from model.image.mask import (
+    FIRST_LOOK_WINDOW,
     MaskSpec,
     NoObjectError,
     bilinear_blend,
     clean_mask,
     cross_dilation,
+    first_look_window,
+    guide_of,
     mask_bounds,
+    mask_confidence,
     mask_input,
     mask_output,
     object_mask,
@@ -49,9 +53,9 @@ class Net:
         self.calls = []
 
     def __call__(self, rgb):
-        assert rgb.ndim == 3 and rgb.shape[2] == 3
+        assert rgb.ndim == 3 and rgb.shape[2] in (3, 4)           # colour, or RGBA as the photo lies
         self.calls.append(rgb.shape[:2])
-        return (np.abs(rgb.astype(np.int32) - OBJECT).max(axis=2) < 30).astype(np.float32)
+        return (np.abs(rgb[..., :3].astype(np.int32) - OBJECT).max(axis=2) < 30).astype(np.float32)
 
 
 def extent(x: np.ndarray, spec: ImageSpec = SPEC) -> tuple[int, int]:
@@ -431,7 +435,7 @@ def test_the_blend_keeps_pillows_skipped_pass_and_non_finite_values():
 def colour_network(colour: tuple[int, int, int]):
     """A stand-in foreground network on the image's own pixels: the object is the given colour."""
     want = np.asarray(colour, np.int32)
-    return lambda rgb: (np.abs(rgb.astype(np.int32) - want).max(axis=2) < 30).astype(np.float32)
+    return lambda rgb: (np.abs(rgb[..., :3].astype(np.int32) - want).max(axis=2) < 30).astype(np.float32)
 
 
 def test_a_box_is_judged_on_what_it_holds_not_on_its_context():
@@ -453,3 +457,92 @@ def test_a_box_is_judged_on_what_it_holds_not_on_its_context():
     rgb[200:205, 50:55] = (20, 40, 160)                   # 5 x 5: under MIN_OBJECT_SIDE
     with pytest.raises(NoObjectError, match="only 5x5 pixels"):
         frame_object(rgb, SPEC, net, "true", region=(195, 45, 210, 60))
+
+
+def grid_network(size: int = 32, colour: tuple[int, int, int] = OBJECT):
+    """A stand-in foreground network that answers on its own ``size``² grid over the whole image,
+    as the real one does: the object's colour, box-filtered to the grid."""
+    want = np.asarray(colour, np.int32)
+
+    def segment(rgb: np.ndarray) -> np.ndarray:
+        hit = (np.abs(rgb[..., :3].astype(np.int32) - want).max(axis=2) < 30).astype(np.float32)
+        return resize_mask(hit, size, size)
+    return segment
+
+
+def test_the_first_looks_window_holds_every_value_above_one_half_bit_for_bit():
+    """``first_look_window``: inside, the whole guided mask's values; outside, none above 0.5."""
+    spec = MaskSpec(size=32, guide=1.0, guide_eps=3e-5)
+    rng = np.random.default_rng(7)
+    windows = 0
+    for _ in range(40):
+        h, w = (int(v) for v in rng.integers(60, 400, 2))
+        rgb = rng.integers(100, 256, (h, w, 3)).astype(np.uint8)
+        t, l = int(rng.integers(0, h - 20)), int(rng.integers(0, w - 20))
+        rgb[t:t + int(rng.integers(5, h // 3)), l:l + int(rng.integers(5, w // 3))] = OBJECT
+        if rng.random() < 0.5:                         # a network's blur: a smooth bump, values all the way down
+            gy, gx = np.mgrid[:32, :32]
+            bump = np.exp(-np.hypot(gy - rng.uniform(5, 27), gx - rng.uniform(5, 27)) ** 2 / rng.uniform(4, 60))
+            p = (bump * rng.uniform(0.55, 1.0)).astype(np.float32)
+        else:
+            p = grid_network(32)(rgb) * np.float32(rng.uniform(0.6, 1.0))
+        guide = guide_of(rgb)
+        whole = to_image(rgb, p, spec, guide)
+        seen = first_look_window(rgb, p, spec, guide)
+        if seen is None:                               # nothing above 0.5, or a window too large to save work
+            continue
+        windows += 1
+        values, (y0, y1, x0, x1) = seen
+        assert np.array_equal(values.view(np.uint32), whole[y0:y1, x0:x1].view(np.uint32))
+        outside = whole.copy()
+        outside[y0:y1, x0:x1] = 0
+        assert outside.max() <= 0.5 and (y1 - y0) * (x1 - x0) <= FIRST_LOOK_WINDOW * h * w
+    assert windows >= 25
+
+
+def test_a_mask_made_from_the_first_looks_window_is_the_whole_first_looks(monkeypatch):
+    """object_mask with the window and with the first look made whole give the same mask: a small
+    object (second look), two objects far apart, a speck, a second look that finds nothing (the
+    whole first look then), a large object (no window)."""
+    import model.image.mask as mask_module
+
+    spec = MaskSpec(size=32, guide=1.0, guide_eps=3e-5, keep=0.2)
+    cases = [photo(400, 600, ((300, 450, 360, 540),)), photo(400, 600, ((20, 20, 80, 90), (300, 450, 360, 540))),
+             photo(400, 600, ((200, 200, 290, 330), (30, 500, 36, 506))), photo(300, 300, ((20, 20, 280, 270),))]
+    net = grid_network(32)
+    calls = []
+
+    def forgetful(img):
+        calls.append(img.shape[:2])
+        return net(img) if len(calls) % 2 == 1 else np.zeros((32, 32), np.float32)
+
+    for rgb, _ in cases:
+        for segment in (net, forgetful):
+            calls.clear()
+            got = object_mask(rgb, segment, spec)
+            with monkeypatch.context() as m:
+                m.setattr(mask_module, "first_look_window", lambda *a: None)
+                calls.clear()
+                want = object_mask(rgb, segment, spec)
+            assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
+
+
+def test_mask_confidence_bands_the_edge_as_scipys_window_filters_do():
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        h, w = (int(v) for v in rng.integers(20, 300, 2))
+        yy, xx = np.mgrid[:h, :w]
+        mask = np.clip(1.5 - np.hypot(yy - h * rng.random(), xx - w * rng.random()) / (0.3 * max(h, w)), 0, 1)
+        mask = (mask * rng.uniform(0.8, 1.0, mask.shape)).astype(np.float32)
+        hard = mask > 0.5
+        if not hard.any():
+            continue
+        box = mask_bounds(hard)
+        reach = max(2, round(0.01 * max(box[2] - box[0], box[3] - box[1])))
+        top, left = max(0, box[0] - reach - 1), max(0, box[1] - reach - 1)
+        near = hard[top:box[2] + reach + 1, left:box[3] + reach + 1]
+        p = mask[top:box[2] + reach + 1, left:box[3] + reach + 1]
+        band = ((ndimage.maximum_filter(near.view(np.uint8), 2 * reach + 1) > 0)
+                & (ndimage.minimum_filter(near.view(np.uint8), 2 * reach + 1, mode="constant", cval=0) == 0))
+        want = float(np.abs(2 * p[band] - 1).mean()) if band.any() else 1.0
+        assert mask_confidence(mask) == want

@@ -147,15 +147,6 @@ def test_composite_is_the_rounded_blend_for_every_colour_alpha_and_background():
     assert composite(np.array([[[10, 20, 30, 0]]], np.uint8), (1, 2, 3)).tolist() == [[[1, 2, 3]]]
 
 
-def test_rgb_of_drops_the_alpha_and_is_contiguous():
-    from model.image.frame import rgb_of
-
-    rgba = np.random.default_rng(0).integers(0, 256, (7, 5, 4), dtype=np.uint8)
-    rgb = rgb_of(rgba)
-    assert rgb.flags.c_contiguous and np.array_equal(rgb, rgba[..., :3])
-    assert np.array_equal(rgb_of(rgba[:, ::2]), rgba[:, ::2, :3])      # a strided view too
-
-
 def _encode(img: Image.Image, fmt: str, **kw) -> bytes:
     buf = io.BytesIO()
     img.save(buf, format=fmt, **kw)

@@ -59,9 +59,12 @@ from model.octree import pointcloud, segments, symmetry
 from model.octree.pointcloud import estimate_normals
 from model.octree.symmetry import find_mirror
 from model.surface import clusters, watertight_mesh
-from model.image import frame, mask
+from model.image import frame, mask, resample
 frame.object_box(np.full((8, 8, 4), 255, np.uint8))
 mask.bilinear_blend(np.ones((16, 16), np.float32), np.ones((16, 16), np.float32), np.ones((40, 30), np.float32))
+mask.mask_input(np.zeros((200, 300, 4), np.uint8), mask.MaskSpec())        # across first, then down first
+mask.mask_input(np.zeros((400, 130, 3), np.uint8), mask.MaskSpec())
+frame.composite(np.zeros((4, 4, 4), np.uint8), (1, 2, 3)); mask.mask_confidence(np.eye(20, dtype=np.float32))
 p = np.random.default_rng(0).random((3000, 3))
 estimate_normals(p); find_mirror(p); t = build_octree((p, None), 6)
 fuse.keep_scan(t, build_octree((p[:1500], None), 6))
@@ -80,7 +83,7 @@ def contracted(a, b, c):      # the detector's own check: asked to, the compiler
 x = np.ones(8)
 contracted(x, x, x)
 kernels = [f for m in (knn, probe_search, orient, geometry, clusters, fuse, mask, build, patch_error, segments, patches,
-                        planes, symmetry, keys, frame, pointcloud) for f in vars(m).values()
+                        planes, symmetry, keys, frame, pointcloud, resample) for f in vars(m).values()
            if hasattr(f, "inspect_asm")]
 for f in kernels + [contracted]:
     for sig in f.signatures:
@@ -105,7 +108,8 @@ def test_no_kernel_fuses_a_multiply_and_an_add(tmp_path):
     assert {"_query", "_within", "_grid_probes", "_edge_probes", "covariance_rows", "_cube_polygons",
             "_nearest_on_fans", "_walk", "_blend", "_eigen_vectors", "_plane_normals", "_polygon_distance",
             "_place_planes", "_point_distances", "_segment_sums", "_write_patches", "radix_order",
-            "sorted_payloads", "spanning_tree", "cell_keys", "_differing_bounds", "distances_from"} <= set(listings)
+            "sorted_payloads", "spanning_tree", "cell_keys", "_differing_bounds", "distances_from", "_across", "_down",
+            "_normalised", "_composite", "_edge_band"} <= set(listings)
     fused = {name: [op for op in FUSED if op in asm] for name, asm in listings.items()}
     assert not any(ops for name, ops in fused.items() if name != "contracted"), fused
     cpu = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""

@@ -61,8 +61,9 @@ def true_box(mask: np.ndarray) -> tuple[int, int, int, int]:
 
 
 def oracle(rgb: np.ndarray) -> np.ndarray:
-    """The drawn object's mask, read off the colours (the object is dark, the background bright)."""
-    return (rgb.astype(np.int32).sum(axis=2) < 300).astype(np.float32)
+    """The drawn object's mask, read off the colours (the object is dark, the background bright) of
+    an (H, W, 3|4) image."""
+    return (rgb[..., :3].astype(np.int32).sum(axis=2) < 300).astype(np.float32)
 
 
 @pytest.fixture
@@ -134,7 +135,7 @@ def test_an_opaque_photo_is_cut_out_by_the_network(fg_client, segment_calls):
     assert r.headers["x-mask"] == "network" and r.headers["x-foreground-ratio"] == "0.900"
     assert np.abs(np.subtract(crop_box(r), true_box(mask))).max() <= 1
     # the whole photo, then the object's square (its 80 px box grown 20% a side) at full resolution
-    assert [c.shape for c in segment_calls] == [(160, 200, 3), (112, 112, 3)]
+    assert [c.shape for c in segment_calls] == [(160, 200, 4), (112, 112, 4)]      # RGBA, as decoded
     assert {"decode_input", "mask", "encoder", "decoder"} <= stages(r)
 
 
@@ -362,17 +363,21 @@ def test_a_box_without_background_removal_is_the_crop_and_alpha_still_wins(fg_cl
 
 def test_the_warm_up_runs_the_foreground_network_and_compiles_the_guided_filters_kernel(foreground_models_dir, tmp_path):
     """A fresh process with a foreground network whose masks go through the guided filter: after
-    the warm-up the filter's compiled blend has its machine code (a first photo does not spend
-    seconds compiling it)."""
+    the warm-up the filter's compiled blend, the edge band, the composite and the network input's
+    passes (for a photo as decoded and for the views cut from it, wide and tall) have their machine
+    code (a first photo does not spend seconds compiling them)."""
     shutil.copytree(foreground_models_dir, tmp_path / "models")
     meta_path = tmp_path / "models" / "image-to-shape" / "model.json"
     meta = json.loads(meta_path.read_text())
     meta["input"]["foreground"]["guide"] = 1.0
     meta_path.write_text(json.dumps(meta))
     code = ("import sys; from service.engine import Engine; from service.settings import Settings; "
-            "from model.image import mask; e = Engine(Settings(models_dir=sys.argv[1])); e.load(); "
-            "before = len(mask._blend.signatures); e.warm_up(); print(before, len(mask._blend.signatures))")
+            "from model.image import frame, mask, resample; e = Engine(Settings(models_dir=sys.argv[1])); e.load(); "
+            "ks = (mask._blend, mask._edge_band, frame._composite, resample._across, resample._down); "
+            "before = [len(k.signatures) for k in ks]; e.warm_up(); print([before, [len(k.signatures) for k in ks]])")
     out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "models")], capture_output=True, text=True,
                          timeout=600, cwd=REPO)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip().splitlines()[-1] == "0 1", out.stdout
+    before, after = json.loads(out.stdout.strip().splitlines()[-1])
+    assert before == [0, 0, 0, 0, 0], out.stdout
+    assert after == [1, 1, 1, 2, 2], out.stdout             # the photo and its views, across or down first
