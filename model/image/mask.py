@@ -253,10 +253,10 @@ def first_look_window(rgb: np.ndarray, p: np.ndarray, spec: MaskSpec, guide: np.
     if not (np.isfinite(a).all() and np.isfinite(b).all()):
         return None
     slack = 1e-5 * (1.0 + float(np.abs(a).max()) + float(np.abs(b).max()))
-    rows, cols = np.flatnonzero((np.maximum(b, a + b) > 0.5 - slack).any(axis=1)), None
+    may_pass = np.maximum(b, a + b) > 0.5 - slack
+    rows, cols = np.flatnonzero(may_pass.any(axis=1)), np.flatnonzero(may_pass.any(axis=0))
     if len(rows) == 0:
         return None
-    cols = np.flatnonzero((np.maximum(b, a + b) > 0.5 - slack).any(axis=0))
     across, down = _bilinear_taps(w, W), _bilinear_taps(h, H)
     y0, y1 = _reaching(down[0], rows[0], rows[-1])
     x0, x1 = _reaching(across[0], cols[0], cols[-1])

@@ -414,6 +414,25 @@ def test_the_blend_of_the_guided_filter_is_pillows_bilinear_resizing_bit_for_bit
         assert got.dtype == np.float32 and np.array_equal(got.view(np.uint32), want.view(np.uint32)), (h, w, H, W)
 
 
+def test_a_window_of_the_blend_is_the_whole_blends_window_bit_for_bit():
+    """``bilinear_blend`` on a window (y0, y1, x0, x1) against the whole blend's rows and columns:
+    enlarged both ways, one way reduced (down first, or across first), a size unchanged."""
+    rng = np.random.default_rng(6)
+    for _ in range(60):
+        h, w = (int(v) for v in rng.integers(3, 60, 2))
+        H = int(rng.integers(h, 300)) if rng.random() < 0.7 else int(rng.integers(1, h + 1))
+        W = int(rng.integers(w, 300)) if H <= h or rng.random() < 0.7 else int(rng.integers(1, w + 1))
+        if rng.random() < 0.15:
+            W = w
+        a, b = rng.normal(0, 3, (h, w)).astype(np.float32), rng.normal(0.5, 1, (h, w)).astype(np.float32)
+        guide = rng.random((H, W)).astype(np.float32)
+        whole = bilinear_blend(a, b, guide)
+        y0, x0 = int(rng.integers(0, H)), int(rng.integers(0, W))
+        y1, x1 = int(rng.integers(y0 + 1, H + 1)), int(rng.integers(x0 + 1, W + 1))
+        part = bilinear_blend(a, b, guide, (y0, y1, x0, x1))
+        assert np.array_equal(part.view(np.uint32), whole[y0:y1, x0:x1].view(np.uint32)), (h, w, H, W)
+
+
 def test_the_blend_keeps_pillows_skipped_pass_and_non_finite_values():
     """Where a size does not change Pillow makes no pass in that direction: an infinite or NaN
     coefficient stays in its own row or column, as in Pillow's output (a tap of weight 0 would
