@@ -15,7 +15,9 @@ the scan did not see inside that octant.
 The fusion walks both trees at once, depth first over the octants either tree splits (compiled
 with numba: a NumPy formulation, one level of both trees at a time, spent 16-24 ms of a
 completion request on a 20,000-point scan, the walk 4 ms); its arithmetic is NumPy's, operation
-for operation, and tests compare every leaf with that formulation bit for bit.
+for operation, and tests compare every leaf with that formulation bit for bit.  The fused tree is
+then built from its leaves level by level, each level in one compiled pass (tests compare every
+level's arrays with the NumPy construction).
 """
 
 from __future__ import annotations
@@ -24,7 +26,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import keys as morton
 from .jit import compiled, inlined
 from .neighbors import build_neighbors
 from .octree import EMPTY, LEAF, PLANE_SCALE, SPLIT, Octree, OctreeLevel
@@ -80,11 +81,7 @@ def keep_scan(decoded: Octree, scan: Octree, neighbors: bool = False) -> Octree:
     at, key, plane, error, npoints = _walk(depth, float(scan.threshold), s.start, s.label, s.child, s.live, s.plane,
                                            s.error, s.npoints, o.start, o.label, o.child, o.live, o.plane,
                                            o.error, o.npoints)
-    leaves = []
-    for d in range(depth + 1):
-        sel = at == d
-        leaves.append((key[sel], plane[sel], error[sel], npoints[sel]) if sel.any() else None)
-    return _from_leaves(decoded, leaves, neighbors)
+    return _from_leaves(decoded, at, key, plane, error, npoints, neighbors)
 
 
 def _live(tree: Octree, depth: int) -> list[np.ndarray]:
@@ -244,48 +241,106 @@ def _grown(a, cap: int):
     return out
 
 
-def _from_leaves(like: Octree, leaves, neighbors: bool) -> Octree:
-    """The octree whose leaves are, per depth, the given (keys, planes, errors, point counts) or
-    None (the keys of all depths cover disjoint regions): every ancestor of a leaf split (with all
-    8 children), everything else empty."""
+def _from_leaves(like: Octree, at: np.ndarray, key: np.ndarray, plane: np.ndarray, error: np.ndarray,
+                 npoints: np.ndarray, neighbors: bool) -> Octree:
+    """The octree whose leaves are the given ones (depth ``at``, ``key``, ``plane``, ``error``,
+    ``npoints`` per leaf; each depth's keys ascending, as the walk emits them; the keys of all
+    depths cover disjoint regions): every ancestor of a leaf split (with all 8 children), every
+    node above ``like.full_depth`` split, everything else empty; ``like``'s depth, settings and
+    frame.  Level by level from the root, each in one compiled pass (:func:`_fill_level`) over
+    arrays of its exact size."""
     depth = like.depth
-    leaf_keys = [p[0] if p is not None else np.zeros(0, np.uint64) for p in leaves]
-    # the ancestors of the leaves, per depth, bottom up: the parents of the next depth's leaves and splits
-    split_keys = [np.zeros(0, np.uint64)] * (depth + 1)
-    for d in range(depth - 1, -1, -1):
-        split_keys[d] = np.unique(morton.parent_keys(np.concatenate([leaf_keys[d + 1], split_keys[d + 1]])))
+    order, first, unsorted = _by_depth(depth, at, key)
+    if unsorted >= 0:
+        raise ValueError(f"depth {unsorted}: the leaves' keys are not ascending")
     levels: list[OctreeLevel] = []
-    key = np.zeros(1, np.uint64)
-    parent = np.full(1, -1, np.int32)
+    keys, parent = np.zeros(1, np.uint64), np.full(1, -1, np.int32)
     for d in range(depth + 1):
-        n = len(key)
-        label = np.full(n, EMPTY, np.int8)
-        plane = np.zeros((n, 4), np.float32)
-        error = np.full(n, np.nan, np.float32)
-        npoints = np.zeros(n, np.int32)
-        if leaves[d] is not None:
-            keys, planes, errors, counts = leaves[d]
-            at = morton.lookup(key, keys)
-            if np.any(at == n):
-                raise ValueError(f"depth {d}: leaves nest or lie outside the tree")
-            label[at] = LEAF
-            plane[at], error[at], npoints[at] = planes, errors, counts
-        split = (morton.lookup(split_keys[d], key) < len(split_keys[d])) | (d < like.full_depth)
-        if d == depth:
-            split[:] = False
-        if np.any(split & (label == LEAF)):
+        n = len(keys)
+        lv = OctreeLevel(depth=d, key=keys, label=np.full(n, EMPTY, np.int8), child=np.full(n, -1, np.int32),
+                         parent=parent, plane=np.zeros((n, 4), np.float32), error=np.full(n, np.nan, np.float32),
+                         npoints=np.zeros(n, np.int32))
+        code, keys, parent = _fill_level(d, depth, like.full_depth, order, first, key, plane, error, npoints,
+                                         lv.key, lv.label, lv.child, lv.plane, lv.error, lv.npoints)
+        if code == 1:
+            raise ValueError(f"depth {d}: leaves nest or lie outside the tree")
+        if code == 2:
             raise ValueError(f"depth {d}: a leaf contains another leaf")
-        label[split] = SPLIT
-        split_idx = np.flatnonzero(split)
-        child = np.full(n, -1, np.int32)
-        child[split_idx] = np.arange(len(split_idx), dtype=np.int32)
-        levels.append(OctreeLevel(depth=d, key=key, label=label, child=child, parent=parent, plane=plane,
-                                  error=error, npoints=npoints))
-        key = morton.child_keys(key[split_idx])
-        parent = np.repeat(split_idx.astype(np.int32), 8)
+        levels.append(lv)
     fused = Octree(depth=depth, levels=levels, adaptive=True, threshold=like.threshold,
                    full_depth=like.full_depth, adaptive_depth=like.adaptive_depth,
                    normalizations=list(like.normalizations))
     if neighbors:
         build_neighbors(fused)
     return fused
+
+
+@compiled
+def _by_depth(depth: int, at, key):
+    """The leaves grouped by depth, stably: (order, first: where each depth's leaves start in
+    ``order``, the first depth whose keys are not ascending or -1)."""
+    first = np.zeros(depth + 2, np.int64)
+    for i in range(len(at)):
+        first[at[i] + 1] += 1
+    for d in range(depth + 1):
+        first[d + 1] += first[d]
+    order = np.empty(len(at), np.int64)
+    fill = first[:depth + 1].copy()
+    for i in range(len(at)):
+        order[fill[at[i]]] = i
+        fill[at[i]] += 1
+    for d in range(depth + 1):
+        for j in range(first[d] + 1, first[d + 1]):
+            if key[order[j]] <= key[order[j - 1]]:
+                return order, first, d
+    return order, first, -1
+
+
+@compiled
+def _fill_level(d: int, depth: int, full_depth: int, order, first, key, plane, error, npoints,
+                keys, label, child, planes, errors, counts):
+    """Level ``d`` of :func:`_from_leaves` (its ascending ``keys``; the other arrays empty, written
+    here): its leaves found among its keys; a node split when it is above the full depth or an
+    ancestor of a deeper leaf (each deeper depth's leaves, shifted to this depth, are walked
+    beside the ascending keys).  Returns (code: 0, 1 a leaf not among the keys, 2 a leaf that is
+    split; the next level's keys, the children of the splits in order; their parents' rows)."""
+    n = len(keys)
+    r = 0
+    for j in range(first[d], first[d + 1]):
+        leaf = order[j]
+        while r < n and keys[r] < key[leaf]:
+            r += 1
+        if r == n or keys[r] != key[leaf]:
+            return 1, np.zeros(0, np.uint64), np.zeros(0, np.int32)
+        label[r] = LEAF
+        for c in range(4):
+            planes[r, c] = plane[leaf, c]
+        errors[r], counts[r] = error[leaf], npoints[leaf]
+    if d == depth:
+        return 0, np.zeros(0, np.uint64), np.zeros(0, np.int32)
+    at = first[d + 1:depth + 1].copy()                      # a pointer into each deeper depth's leaves
+    split = 0
+    for r in range(n):
+        below = d < full_depth
+        for e in range(d + 1, depth + 1):
+            shift = np.uint64(3 * (e - d))
+            while at[e - d - 1] < first[e + 1] and key[order[at[e - d - 1]]] >> shift < keys[r]:
+                at[e - d - 1] += 1
+            if at[e - d - 1] < first[e + 1] and key[order[at[e - d - 1]]] >> shift == keys[r]:
+                below = True
+        if below:
+            if label[r] == LEAF:
+                return 2, np.zeros(0, np.uint64), np.zeros(0, np.int32)
+            label[r] = SPLIT
+            child[r] = split
+            split += 1
+    nxt = np.empty(8 * split, np.uint64)
+    parent = np.empty(8 * split, np.int32)
+    m = 0
+    for r in range(n):
+        if label[r] == SPLIT:
+            for slot in range(8):
+                nxt[m] = (keys[r] << np.uint64(3)) | np.uint64(slot)
+                parent[m] = r
+                m += 1
+    return 0, nxt, parent

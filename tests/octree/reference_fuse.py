@@ -2,7 +2,8 @@
 
 A deliberately plain second implementation of ``model.octree.fuse.keep_scan`` (the formulation
 before the fusion's walk was compiled), kept so that tests can check that the compiled walk
-gives every leaf the same plane, error and point count, bit for bit.  It shares only the
+gives every leaf the same plane, error and point count, bit for bit; and the construction of the
+fused tree from its leaves (:func:`reference_tree`), kept to check the compiled one.  It shares only the
 octree's data structure, Morton keys and which nodes hold a patch (``_live``) with the module.
 """
 
@@ -153,3 +154,48 @@ def _leaf_rows(tree: Octree, depth: int, key: np.ndarray, side: _Side):
             at = inherited[side.source[inherited, 0] == d]
             error[at] = tree.levels[d].error[side.source[at, 1]]
     return key, plane, error, npoints
+
+
+def reference_tree(like: Octree, leaves) -> Octree:
+    """The octree whose leaves are, per depth, the given (keys, planes, errors, point counts) or
+    None (the keys of all depths cover disjoint regions): every ancestor of a leaf split (with all
+    8 children), everything else empty: the NumPy formulation, level by level, kept to check the
+    compiled construction (``model.octree.fuse._levels``) array for array."""
+    depth = like.depth
+    leaf_keys = [p[0] if p is not None else np.zeros(0, np.uint64) for p in leaves]
+    # the ancestors of the leaves, per depth, bottom up: the parents of the next depth's leaves and splits
+    split_keys = [np.zeros(0, np.uint64)] * (depth + 1)
+    for d in range(depth - 1, -1, -1):
+        split_keys[d] = np.unique(morton.parent_keys(np.concatenate([leaf_keys[d + 1], split_keys[d + 1]])))
+    levels: list[OctreeLevel] = []
+    key = np.zeros(1, np.uint64)
+    parent = np.full(1, -1, np.int32)
+    for d in range(depth + 1):
+        n = len(key)
+        label = np.full(n, EMPTY, np.int8)
+        plane = np.zeros((n, 4), np.float32)
+        error = np.full(n, np.nan, np.float32)
+        npoints = np.zeros(n, np.int32)
+        if leaves[d] is not None:
+            keys, planes, errors, counts = leaves[d]
+            at = morton.lookup(key, keys)
+            if np.any(at == n):
+                raise ValueError(f"depth {d}: leaves nest or lie outside the tree")
+            label[at] = LEAF
+            plane[at], error[at], npoints[at] = planes, errors, counts
+        split = (morton.lookup(split_keys[d], key) < len(split_keys[d])) | (d < like.full_depth)
+        if d == depth:
+            split[:] = False
+        if np.any(split & (label == LEAF)):
+            raise ValueError(f"depth {d}: a leaf contains another leaf")
+        label[split] = SPLIT
+        split_idx = np.flatnonzero(split)
+        child = np.full(n, -1, np.int32)
+        child[split_idx] = np.arange(len(split_idx), dtype=np.int32)
+        levels.append(OctreeLevel(depth=d, key=key, label=label, child=child, parent=parent, plane=plane,
+                                  error=error, npoints=npoints))
+        key = morton.child_keys(key[split_idx])
+        parent = np.repeat(split_idx.astype(np.int32), 8)
+    return Octree(depth=depth, levels=levels, adaptive=True, threshold=like.threshold,
+                  full_depth=like.full_depth, adaptive_depth=like.adaptive_depth,
+                  normalizations=list(like.normalizations))

@@ -247,3 +247,70 @@ def test_the_compiled_walk_gives_the_reference_fusions_leaves_bit_for_bit(sphere
     want = reference_leaves(whole, scan)
     assert len(want) > (40 if case == "shallow output" else 1000)
     assert _fused_leaves(fused) == want
+
+
+def _walked(decoded, scan):
+    """The compiled walk's leaves of ``keep_scan(decoded, scan)`` (depth, key, plane, error, count)."""
+    from model.octree.fuse import _flat, _walk
+
+    s, o = _flat(scan, decoded.depth), _flat(decoded, decoded.depth)
+    return _walk(decoded.depth, float(scan.threshold), s.start, s.label, s.child, s.live, s.plane, s.error,
+                 s.npoints, o.start, o.label, o.child, o.live, o.plane, o.error, o.npoints)
+
+
+def _by_depth(depth, at, key, plane, error, npoints):
+    return [(key[at == d], plane[at == d], error[at == d], npoints[at == d]) if (at == d).any() else None
+            for d in range(depth + 1)]
+
+
+@pytest.mark.parametrize("case", ["sphere", "jittered", "full output", "full scan", "shallow output"])
+def test_the_fused_tree_is_the_reference_construction_array_for_array(sphere_case, case):
+    """The compiled construction of the fused tree from its leaves against the NumPy formulation
+    (tests/octree/reference_fuse.py): every level's keys, labels, children, parents, planes,
+    errors (NaN where no leaf) and point counts, bit for bit and in their dtypes."""
+    from .reference_fuse import reference_tree
+
+    pts, seen, frame, scan, whole = sphere_case
+    nrm = sphere_points(40_000)[1]
+    if case == "jittered":
+        whole = _jittered(whole, 2)
+    elif case == "full output":
+        whole = _jittered(build_octree(validate(pts, nrm), 6, normalization=frame, adaptive=False), 1)
+    elif case == "full scan":
+        scan = scan_octree(validate(pts[seen], nrm[seen]), 6, adaptive=False)
+    elif case == "shallow output":
+        whole = build_octree(validate(pts, nrm), 2, normalization=frame)
+    fused = keep_scan(whole, scan)
+    want = reference_tree(whole, _by_depth(whole.depth, *_walked(whole, scan)))
+    assert len(fused.levels) == len(want.levels) == whole.depth + 1
+    for got, ref in zip(fused.levels, want.levels):
+        for field in ("key", "label", "child", "parent", "plane", "error", "npoints"):
+            a, b = getattr(got, field), getattr(ref, field)
+            assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes(), (case, got.depth, field)
+    assert (fused.full_depth, fused.adaptive_depth, fused.threshold) == (whole.full_depth, whole.adaptive_depth,
+                                                                           whole.threshold)
+
+
+def test_leaves_that_nest_or_split_are_refused_as_before():
+    """The construction refuses what the walk never emits, with the reference's messages: a leaf
+    inside another leaf, a leaf above the full depth, a key outside its depth's cube, a depth's
+    keys out of order."""
+    from model.octree.fuse import _from_leaves
+
+    from .reference_fuse import reference_tree
+
+    like = build_octree(validate(*sphere_points(2_000)), 3)
+    plane = np.zeros((2, 4), np.float32)
+    error, count = np.zeros(2, np.float32), np.zeros(2, np.int32)
+    nested = (np.array([2, 3]), np.array([9, 9 * 8 + 1], np.uint64))        # depth-3 key 73 lies inside leaf 9
+    above = (np.array([0, 3]), np.array([0, 100], np.uint64))                # the root a leaf under full depth
+    outside = (np.array([3, 3]), np.array([5, 600], np.uint64))              # depth 3 has keys below 8^3 = 512
+    for (at, key), message in ((nested, "depth 2: a leaf contains another leaf"),
+                               (above, "depth 0: a leaf contains another leaf"),
+                               (outside, "depth 3: leaves nest or lie outside the tree")):
+        with pytest.raises(ValueError, match=message):
+            _from_leaves(like, at, key, plane, error, count, False)
+        with pytest.raises(ValueError, match=message):
+            reference_tree(like, _by_depth(3, at, key, plane, error, count))
+    with pytest.raises(ValueError, match="depth 3: the leaves' keys are not ascending"):
+        _from_leaves(like, np.array([3, 3]), np.array([100, 90], np.uint64), plane, error, count, False)

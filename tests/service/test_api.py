@@ -437,8 +437,8 @@ def test_the_warm_up_compiles_the_normal_estimation_before_the_first_scan(models
     kernels = ("orient.covariance_rows, orient.spanning_tree, orient.propagate_signs, knn._query, knn._within, "
                "probe_search._grid_probes, probe_search._edge_probes, clusters._nearest_on_fans, flood._repair_round, "
                "flood._reached, flood._dilated, checks._fan_counts, checks._edge_faults, graph._components, graph._close_pairs, "
-               "clusters._merged_faces, fuse._walk, orient._edges_by_weight, orient.radix_order, keys.cell_keys, "
-               "build._rows_in_order, frame._differing_bounds")
+               "clusters._merged_faces, fuse._walk, fuse._by_depth, fuse._fill_level, orient._edges_by_weight, "
+               "orient.radix_order, keys.cell_keys, build._rows_in_order, frame._differing_bounds")
     code = ("import sys; from service.engine import Engine; from service.settings import Settings; "
             "from model.octree import build, fuse, keys, orient, knn, probe_search; from model.image import frame; "
             "from model.surface import checks, clusters, flood, graph; "
