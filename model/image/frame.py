@@ -362,10 +362,12 @@ def _network_mask(rgb: np.ndarray, segment, spec: MaskSpec, refine, region: tupl
 
 
 def compile_framing(spec: ImageSpec, mask_spec: MaskSpec) -> None:
-    """Compile the network framing's kernels for the arrays a served photo brings (an opaque RGBA
-    photo as decoded, wide and tall, and the views cut from it), so that no request pays for it:
-    frames such photos with a stand-in network that reads its input (:func:`mask_input`) and
-    answers a small centred object, on every look."""
+    """Compile the network framing's kernels for the arrays a served photo brings, so that no
+    request pays for it (numba compiles one version per array layout: a photo as decoded is
+    contiguous, a crop of it is contiguous only when it spans whole rows): frames opaque RGBA
+    photos, wide and tall, with a stand-in network that reads its input (:func:`mask_input`) and
+    answers a small centred object on every look, with and without a box; then each kernel's
+    wrapper on contiguous and strided arrays of either order of passes."""
     blob = np.zeros((mask_spec.size, mask_spec.size), np.float32)
     q = mask_spec.size // 4
     blob[q + q // 2:3 * q - q // 2, q + q // 2:3 * q - q // 2] = 1.0
@@ -374,15 +376,27 @@ def compile_framing(spec: ImageSpec, mask_spec: MaskSpec) -> None:
         mask_input(image, mask_spec)
         return blob
 
-    for h, w in ((3 * mask_spec.size, 4 * mask_spec.size), (5 * mask_spec.size, 2 * mask_spec.size)):
+    size = mask_spec.size
+    for h, w in ((3 * size, 4 * size), (5 * size, 2 * size)):
         photo = np.full((h, w, 4), 255, np.uint8)
-        mask_input(photo[:, : w // 2], mask_spec)            # views of either shape, both orders of passes
-        mask_input(photo[: h // 2], mask_spec)
         for region in (None, (h // 8, w // 8, h - h // 8, w - w // 8)):
             try:
                 frame_object(photo, spec, stand_in, "auto", None, mask_spec, None, region)
             except NoObjectError:
                 pass
+    photo = np.full((6 * size, 4 * size, 4), 255, np.uint8)
+    for image in (photo[:, :2 * size], photo[:2 * size], photo[:3 * size, :size], photo[:3 * size, :, :3],
+                  photo[:, :size], photo[:size], photo[:size, :size]):
+        mask_input(image, mask_spec)                       # down or across first, a pass skipped, C or strided
+    for part in (photo[:4, :4], photo[:4]):
+        canvas = np.empty((part.shape[0] + 2, part.shape[1] + 2, 3), np.uint8)
+        for out in (None, canvas[1:-1, 1:-1], canvas[1:-1]):
+            composite(part, spec.background, out if out is None else out[:, :part.shape[1]])
+    edge = np.zeros((64, 64), np.float32)
+    for rows, cols in ((slice(20, 40), slice(20, 40)), (slice(20, 40), slice(0, 64))):
+        edge[:] = 0.0
+        edge[rows, cols] = 1.0
+        mask_confidence(edge)                              # a band strided, or whole rows
 
 
 def region_of(box: tuple[int, int, int, int], size: tuple[int, int], shape: tuple[int, int]

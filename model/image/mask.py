@@ -233,23 +233,33 @@ FIRST_LOOK_WINDOW = 0.5
 a larger one is computed whole (its object is too large for a second look to be likely)."""
 
 
-def first_look_window(rgb: np.ndarray, p: np.ndarray, spec: MaskSpec, guide: np.ndarray | None
-                      ) -> tuple[np.ndarray, tuple[int, int, int, int]] | None:
-    """The first look's mask (:func:`to_image` of ``p``) on a window (y0, y1, x0, x1) outside which
-    none of its values exceeds 0.5, and the window; None where that is not known or the window
-    covers more than :data:`FIRST_LOOK_WINDOW` of the photo.  Where it is known: the guided filter
-    resized bilinearly.  Each value there is ``a I + b``, with ``a``, ``b`` interpolated from the
-    grid with weights that sum to 1 and ``I`` in [0, 1], so it is at most the largest
-    ``max(b, a + b)`` of the grid points it is interpolated from; the window holds every pixel
-    interpolated from a grid point where that bound, widened by far more than the float32 rounding
-    of the passes, exceeds 0.5.  The values in it are those of the whole mask, bit for bit."""
+def blend_coefficients(p: np.ndarray, spec: MaskSpec, guide: np.ndarray | None
+                       ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The guided filter's averaged coefficients ``a``, ``b`` of ``p`` where :func:`to_image`
+    blends them bilinearly to the guide's size (``bilinear_blend(a, b, guide)`` is then its
+    result, bit for bit); None where it does not (no guided filter, the grid at the image's size or
+    reduced both ways)."""
     if spec.guide <= 0 or guide is None:
         return None
     p = np.asarray(p, np.float32)
     (h, w), (H, W) = p.shape, guide.shape
     if (h, w) == (H, W) or _box_filtered(h, w, H, W):
         return None
-    a, b = _guided_coefficients(p, guide, spec.guide * max(p.shape) / spec.size, spec.guide_eps)
+    return _guided_coefficients(p, guide, spec.guide * max(p.shape) / spec.size, spec.guide_eps)
+
+
+def first_look_window(a: np.ndarray, b: np.ndarray, guide: np.ndarray
+                      ) -> tuple[np.ndarray, tuple[int, int, int, int]] | None:
+    """The first look's mask (``bilinear_blend(a, b, guide)``, :func:`blend_coefficients`) on a
+    window (y0, y1, x0, x1) outside which none of its values exceeds 0.5, and the window; None where
+    the coefficients are not finite, nothing can pass 0.5, or the window covers more than
+    :data:`FIRST_LOOK_WINDOW` of the photo.  Each value is ``a I + b``, with ``a``, ``b``
+    interpolated from the grid with weights that sum to 1 and ``I`` in [0, 1], so it is at most the
+    largest ``max(b, a + b)`` of the grid points it is interpolated from; the window holds every
+    pixel interpolated from a grid point where that bound, widened by far more than the float32
+    rounding of the passes, exceeds 0.5.  The values in it are those of the whole mask, bit for
+    bit."""
+    (h, w), (H, W) = a.shape, guide.shape
     if not (np.isfinite(a).all() and np.isfinite(b).all()):
         return None
     slack = 1e-5 * (1.0 + float(np.abs(a).max()) + float(np.abs(b).max()))
@@ -460,9 +470,17 @@ def object_mask(rgb: np.ndarray, segment, spec: MaskSpec, refine=None) -> np.nda
     h, w = rgb.shape[:2]
     guide = guide_of(rgb) if spec.guide > 0 else None          # one grey image for both looks
     p = segment(rgb)
-    mask, box = None, _first_box(rgb, p, spec, guide)
+    coefficients = blend_coefficients(p, spec, guide)          # made once, for the window and the whole
+
+    def first_look() -> np.ndarray:
+        whole = to_image(rgb, p, spec, guide) if coefficients is None else bilinear_blend(*coefficients, guide)
+        return clean_mask(whole, spec)
+
+    mask, box = None, None
+    if coefficients is not None and spec.refine > 0:
+        box = _first_box(coefficients, guide, spec)
     if box is None:
-        mask = clean_mask(to_image(rgb, p, spec, guide), spec)
+        mask = first_look()
         box = mask_bounds(mask > 0.5)
     square = refine_square(box, h, w, spec)
     if square is not None and min(square[1] - square[0], square[3] - square[2]) >= spec.refine_side:
@@ -476,25 +494,25 @@ def object_mask(rgb: np.ndarray, segment, spec: MaskSpec, refine=None) -> np.nda
         except NoObjectError:            # the closer look lost the object: keep the first look's mask
             pass
     if mask is None:                     # the first look's mask was only made where it passes 0.5
-        mask = clean_mask(to_image(rgb, p, spec, guide), spec)
+        mask = first_look()
     if refine is None or not spec.crop_size:
         return mask
     return refined_mask(rgb, mask, refine, spec)
 
 
-def _first_box(rgb: np.ndarray, p: np.ndarray, spec: MaskSpec, guide: np.ndarray | None
+def _first_box(coefficients: tuple[np.ndarray, np.ndarray], guide: np.ndarray, spec: MaskSpec
                ) -> tuple[int, int, int, int] | None:
-    """The box of the first look's cleaned mask (``p`` brought to the image, :func:`clean_mask`)
-    from its :func:`first_look_window` only, where second looks are made and the window is known;
-    the same box as from the whole mask (no value outside the window passes 0.5, and the clean-up
-    judges only those that do).  None where the window is not known or the clean-up finds no object
-    in it (the whole mask then says so)."""
-    seen = first_look_window(rgb, p, spec, guide) if spec.refine > 0 else None
+    """The box of the first look's cleaned mask (:func:`clean_mask` of the blend of
+    ``coefficients``) from its :func:`first_look_window` only: the same box as from the whole mask
+    (no value outside the window passes 0.5, and the clean-up judges only those that do).  None
+    where the window is not known or the clean-up finds no object in it (the whole mask then says
+    so)."""
+    seen = first_look_window(*coefficients, guide)
     if seen is None:
         return None
     values, (y0, y1, x0, x1) = seen
     try:
-        top, left, bottom, right = mask_bounds(clean_mask(values, spec, rgb.shape[0] * rgb.shape[1]) > 0.5)
+        top, left, bottom, right = mask_bounds(clean_mask(values, spec, guide.shape[0] * guide.shape[1]) > 0.5)
     except NoObjectError:
         return None
     return top + y0, left + x0, bottom + y0, right + x0

@@ -15,6 +15,7 @@ from model.image.mask import (
     MaskSpec,
     NoObjectError,
     bilinear_blend,
+    blend_coefficients,
     clean_mask,
     cross_dilation,
     first_look_window,
@@ -490,7 +491,8 @@ def grid_network(size: int = 32, colour: tuple[int, int, int] = OBJECT):
 
 
 def test_the_first_looks_window_holds_every_value_above_one_half_bit_for_bit():
-    """``first_look_window``: inside, the whole guided mask's values; outside, none above 0.5."""
+    """``first_look_window``: inside, the whole guided mask's values; outside, none above 0.5; and
+    the blend of ``blend_coefficients`` is the whole mask."""
     spec = MaskSpec(size=32, guide=1.0, guide_eps=3e-5)
     rng = np.random.default_rng(7)
     windows = 0
@@ -507,7 +509,9 @@ def test_the_first_looks_window_holds_every_value_above_one_half_bit_for_bit():
             p = grid_network(32)(rgb) * np.float32(rng.uniform(0.6, 1.0))
         guide = guide_of(rgb)
         whole = to_image(rgb, p, spec, guide)
-        seen = first_look_window(rgb, p, spec, guide)
+        coefficients = blend_coefficients(p, spec, guide)
+        assert np.array_equal(bilinear_blend(*coefficients, guide).view(np.uint32), whole.view(np.uint32))
+        seen = first_look_window(*coefficients, guide)
         if seen is None:                               # nothing above 0.5, or a window too large to save work
             continue
         windows += 1

@@ -380,4 +380,7 @@ def test_the_warm_up_runs_the_foreground_network_and_compiles_the_guided_filters
     assert out.returncode == 0, out.stderr[-2000:]
     before, after = json.loads(out.stdout.strip().splitlines()[-1])
     assert before == [0, 0, 0, 0, 0], out.stdout
-    assert after == [1, 1, 1, 2, 2], out.stdout             # the photo and its views, across or down first
+    # one version per array layout a request brings: the blend's arrays are made contiguous; the
+    # edge band's and the composite's part and canvas are strided or whole rows; the network
+    # input's passes read the photo as decoded or a strided crop
+    assert after == [1, 2, 4, 2, 2], out.stdout
