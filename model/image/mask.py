@@ -1,8 +1,9 @@
 """The object's mask in an opaque photo: the foreground network's input and output, the guided
 filter that brings its grid to the photo's pixels, the clean-up, the second look at a small
 object, and the refinement network's look at the object's square.  One path for training,
-evaluation, the CLI and the service.  NumPy, SciPy, Pillow and one numba kernel (the guided
-filter's blend) only (no torch); the networks are passed in as callables."""
+evaluation, the CLI and the service.  NumPy, SciPy, Pillow and numba kernels (the network input's
+reduction, :mod:`model.image.resample`; the guided filter's blend; the edge band) only (no
+torch); the networks are passed in as callables."""
 
 from __future__ import annotations
 
