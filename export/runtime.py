@@ -109,9 +109,9 @@ class Runtime:
 
     def segment(self, rgb: np.ndarray) -> np.ndarray:
         """(size, size) object probability, on the network's grid over the whole image, of an
-        (H, W, 3) uint8 image by the bundle's foreground network (:func:`model.image.mask.mask_input`
-        / :func:`mask_output`; :func:`model.image.mask.to_image` brings it to the image); ValueError
-        without one."""
+        (H, W, 3|4) uint8 image (its colour channels, read as they lie) by the bundle's foreground
+        network (:func:`model.image.mask.mask_input` / :func:`mask_output`;
+        :func:`model.image.mask.to_image` brings it to the image); ValueError without one."""
         spec = self.bundle.mask_spec()
         if spec is None:
             raise ValueError(f"{self.bundle.path}: the bundle has no foreground network")

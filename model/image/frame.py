@@ -272,8 +272,9 @@ def frame_object(rgba: np.ndarray, spec: ImageSpec, segment=None, remove_backgro
     into the image model (training, evaluation, the CLI and the service).
 
     The mask: an image with transparency (some alpha below 250) uses its alpha; otherwise, unless
-    ``remove_background`` is "false", ``segment`` (a callable from (H, W, 3) uint8 to an object
-    probability on a grid over the image, the foreground network) gives it (:func:`object_mask`:
+    ``remove_background`` is "false", ``segment`` (a callable from an (H, W, 3|4) uint8 image, the
+    photo as it lies or a view of it, to an object probability on a grid over the image, the
+    foreground network) gives it (:func:`object_mask`:
     brought to the image through the guided filter, specks removed, a small object in a large
     photo segmented again at full resolution, then ``refine``'s second look at the object's
     square when given; NoObjectError when nothing is found).  The masked object is composited on

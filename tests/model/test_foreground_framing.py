@@ -539,15 +539,26 @@ def test_a_mask_made_from_the_first_looks_window_is_the_whole_first_looks(monkey
         calls.append(img.shape[:2])
         return net(img) if len(calls) % 2 == 1 else np.zeros((32, 32), np.float32)
 
+    windows = []
+    real_window = mask_module.first_look_window
+
+    def counted(*args):
+        seen = real_window(*args)
+        windows.append(seen is not None)
+        return seen
+
     for rgb, _ in cases:
         for segment in (net, forgetful):
             calls.clear()
-            got = object_mask(rgb, segment, spec)
+            with monkeypatch.context() as m:
+                m.setattr(mask_module, "first_look_window", counted)
+                got = object_mask(rgb, segment, spec)
             with monkeypatch.context() as m:
                 m.setattr(mask_module, "first_look_window", lambda *a: None)
                 calls.clear()
                 want = object_mask(rgb, segment, spec)
             assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
+    assert sum(windows) >= 4                  # the window path ran (both small-object photos, each network)
 
 
 def test_mask_confidence_bands_the_edge_as_scipys_window_filters_do():

@@ -34,7 +34,9 @@ def test_box_input_is_pillows_box_resize_and_the_normalisation(size):
     rng = np.random.default_rng(size)
     for h, w in sizes(rng, size):
         pixels = rng.integers(0, 256, (h + 3, w + 5, 4), dtype=np.uint8)
-        for image in (np.ascontiguousarray(pixels[:h, :w, :3]), pixels[:h, :w], pixels[2:2 + h, 3:3 + w]):
+        views = (np.ascontiguousarray(pixels[:h, :w, :3]), pixels[:h, :w], pixels[2:2 + h, 3:3 + w],
+                 pixels[h - 1::-1, :w], pixels[:h, w - 1::-1, :3])               # and reversed rows or columns
+        for image in views:
             got = box_input(image, size, MEAN, STD)
             want = pillow_input(image, size)
             assert got.dtype == np.float32 and got.shape == (3, size, size)

@@ -160,7 +160,7 @@ def reference_tree(like: Octree, leaves) -> Octree:
     """The octree whose leaves are, per depth, the given (keys, planes, errors, point counts) or
     None (the keys of all depths cover disjoint regions): every ancestor of a leaf split (with all
     8 children), everything else empty: the NumPy formulation, level by level, kept to check the
-    compiled construction (``model.octree.fuse._levels``) array for array."""
+    compiled construction (``model.octree.fuse._fill_level``) array for array."""
     depth = like.depth
     leaf_keys = [p[0] if p is not None else np.zeros(0, np.uint64) for p in leaves]
     # the ancestors of the leaves, per depth, bottom up: the parents of the next depth's leaves and splits

@@ -263,7 +263,8 @@ def _by_depth(depth, at, key, plane, error, npoints):
             for d in range(depth + 1)]
 
 
-@pytest.mark.parametrize("case", ["sphere", "jittered", "full output", "full scan", "shallow output"])
+@pytest.mark.parametrize("case", ["sphere", "jittered", "full output", "full scan", "shallow output",
+                                  "no full depth", "depth 1"])
 def test_the_fused_tree_is_the_reference_construction_array_for_array(sphere_case, case):
     """The compiled construction of the fused tree from its leaves against the NumPy formulation
     (tests/octree/reference_fuse.py): every level's keys, labels, children, parents, planes,
@@ -280,6 +281,11 @@ def test_the_fused_tree_is_the_reference_construction_array_for_array(sphere_cas
         scan = scan_octree(validate(pts[seen], nrm[seen]), 6, adaptive=False)
     elif case == "shallow output":
         whole = build_octree(validate(pts, nrm), 2, normalization=frame)
+    elif case == "no full depth":             # nothing split for its depth alone: only a leaf's ancestors
+        whole = build_octree(validate(pts, nrm), 6, normalization=frame, full_depth=0)
+        scan = scan_octree(validate(pts[seen], nrm[seen]), 6, full_depth=0)
+    elif case == "depth 1":                   # the shallowest output, nothing split for its depth alone
+        whole = build_octree(validate(pts, nrm), 1, normalization=frame, full_depth=0)
     fused = keep_scan(whole, scan)
     want = reference_tree(whole, _by_depth(whole.depth, *_walked(whole, scan)))
     assert len(fused.levels) == len(want.levels) == whole.depth + 1
