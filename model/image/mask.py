@@ -8,7 +8,6 @@ torch); the networks are passed in as callables."""
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from functools import lru_cache
 
 import numpy as np
 from PIL import Image
@@ -17,7 +16,7 @@ from scipy import ndimage
 from model.octree.jit import compiled, inlined
 
 from .decode import ImageError
-from .resample import box_input
+from .resample import box_input, pillow_taps
 
 
 class NoObjectError(ImageError):
@@ -268,7 +267,7 @@ def first_look_window(a: np.ndarray, b: np.ndarray, guide: np.ndarray
     rows, cols = np.flatnonzero(may_pass.any(axis=1)), np.flatnonzero(may_pass.any(axis=0))
     if len(rows) == 0:
         return None
-    across, down = _bilinear_taps(w, W), _bilinear_taps(h, H)
+    across, down = pillow_taps(w, W, "bilinear"), pillow_taps(h, H, "bilinear")
     y0, y1 = _reaching(down[0], rows[0], rows[-1])
     x0, x1 = _reaching(across[0], cols[0], cols[-1])
     if (y1 - y0) * (x1 - x0) > FIRST_LOOK_WINDOW * H * W:
@@ -296,38 +295,11 @@ def bilinear_blend(a: np.ndarray, b: np.ndarray, guide: np.ndarray,
     if b.shape != a.shape:
         raise ValueError(f"a and b must have one shape, got {a.shape} and {b.shape}")
     y0, y1, x0, x1 = (0, H, 0, W) if window is None else window
-    across, down = _bilinear_taps(w, W), _bilinear_taps(h, H)
+    across, down = pillow_taps(w, W, "bilinear"), pillow_taps(h, H, "bilinear")
     out = np.empty((y1 - y0, x1 - x0), np.float32)
     _blend(np.ascontiguousarray(a, np.float32), np.ascontiguousarray(b, np.float32),
            np.ascontiguousarray(guide, np.float32), *across, *down, y0, x0, out)
     return out
-
-
-@lru_cache(maxsize=64)
-def _bilinear_taps(size: int, out: int) -> tuple[np.ndarray, np.ndarray]:
-    """Pillow's bilinear taps from ``size`` pixels to ``out`` (its ``precompute_coeffs``): per
-    output pixel the first input pixel and the count (out, 2), and the normalised weights (out, k),
-    in double."""
-    scale = size / out
-    filterscale = max(scale, 1.0)
-    support = filterscale                              # the triangle's support, 1, widened when reducing
-    bounds = np.zeros((out, 2), np.int64)
-    weights = np.zeros((out, int(np.ceil(support)) * 2 + 1))
-    for xx in range(out):
-        centre = (xx + 0.5) * scale
-        first = max(int(centre - support + 0.5), 0)
-        count = min(int(centre + support + 0.5), size) - first
-        total = 0.0
-        for x in range(count):
-            t = abs((x + first - centre + 0.5) * (1.0 / filterscale))
-            weights[xx, x] = 1.0 - t if t < 1.0 else 0.0
-            total += weights[xx, x]
-        if total != 0.0:
-            weights[xx, :count] /= total
-        bounds[xx] = first, count
-    bounds.setflags(write=False)
-    weights.setflags(write=False)
-    return bounds, weights
 
 
 @compiled

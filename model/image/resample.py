@@ -23,32 +23,55 @@ PRECISION_BITS = 22
 """Pillow's fixed-point precision of 8-bit resampling taps (32 - 8 - 2)."""
 
 
-@lru_cache(maxsize=64)
-def box_taps(size: int, out: int) -> tuple[np.ndarray, np.ndarray]:
-    """Pillow's box-filter taps from ``size`` pixels to ``out`` (``precompute_coeffs`` then
-    ``normalize_coeffs_8bpc``): per output pixel the first input pixel and the count (out, 2),
-    and the fixed-point weights (out, k), int64 (read-only)."""
+def _box(t: float) -> float:
+    return 1.0 if -0.5 < t <= 0.5 else 0.0
+
+
+def _triangle(t: float) -> float:
+    t = abs(t)
+    return 1.0 - t if t < 1.0 else 0.0
+
+
+FILTERS = {"box": (0.5, _box), "bilinear": (1.0, _triangle)}
+"""Pillow's resampling filters used here: (support, weight of a distance in input pixels)."""
+
+
+@lru_cache(maxsize=128)
+def pillow_taps(size: int, out: int, kind: str) -> tuple[np.ndarray, np.ndarray]:
+    """Pillow's taps (its ``precompute_coeffs``) of the filter ``kind`` (:data:`FILTERS`) from
+    ``size`` pixels to ``out``: per output pixel the first input pixel and the count (out, 2), and
+    the weights normalised to sum 1 (out, k), in double, summed and divided as Pillow does; the
+    support widened where the size is reduced (read-only)."""
+    half, weight = FILTERS[kind]
     scale = size / out
     filterscale = max(scale, 1.0)
-    support = 0.5 * filterscale
-    inv = 1.0 / filterscale
+    support = half * filterscale
     bounds = np.zeros((out, 2), np.int64)
-    weights = np.zeros((out, int(np.ceil(support)) * 2 + 1), np.int64)
+    weights = np.zeros((out, int(np.ceil(support)) * 2 + 1))
     for xx in range(out):
         centre = (xx + 0.5) * scale
         first = max(int(centre - support + 0.5), 0)
         count = min(int(centre + support + 0.5), size) - first
-        taps = [1.0 if -0.5 < (x + first - centre + 0.5) * inv <= 0.5 else 0.0 for x in range(count)]
         total = 0.0
-        for w in taps:
-            total += w
-        for x, w in enumerate(taps):
-            k = w / total if total != 0.0 else w
-            weights[xx, x] = int(0.5 + k * (1 << PRECISION_BITS))
+        for x in range(count):
+            weights[xx, x] = weight((x + first - centre + 0.5) * (1.0 / filterscale))
+            total += weights[xx, x]
+        if total != 0.0:
+            weights[xx, :count] /= total
         bounds[xx] = first, count
     bounds.setflags(write=False)
     weights.setflags(write=False)
     return bounds, weights
+
+
+@lru_cache(maxsize=64)
+def box_taps(size: int, out: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pillow's box-filter taps from ``size`` pixels to ``out`` (:func:`pillow_taps` then its
+    ``normalize_coeffs_8bpc``): the bounds, and the fixed-point weights (out, k), int64 (read-only)."""
+    bounds, weights = pillow_taps(size, out, "box")
+    fixed = (0.5 + weights * (1 << PRECISION_BITS)).astype(np.int64)       # non-negative: truncation rounds
+    fixed.setflags(write=False)
+    return bounds, fixed
 
 
 def box_input(image: np.ndarray, size: int, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
